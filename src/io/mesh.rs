@@ -1,0 +1,1 @@
+//! Ordinary glTF mesh scenes (input of `surfelize`) — helper in progress.

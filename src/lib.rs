@@ -1,0 +1,10 @@
+//! LightFuse: relightable, rearrangeable scenes of 2D Gaussian surfels with physically based
+//! materials, reconstructed from multi-state captures. See `DESIGN.md` (shared) and
+//! `docs/formats.md` for the data flow, the conventions and the file formats.
+
+pub mod cli;
+pub mod error;
+pub mod io;
+pub mod scene;
+
+pub use error::{Error, Result};

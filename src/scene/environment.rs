@@ -1,0 +1,168 @@
+//! Environment maps: equirectangular lat-long float RGB (DESIGN §2), scene-linear Rec.709.
+
+/// A lat-long HDR environment. Row 0 is the top (+Y, the zenith); column 0 starts at the
+/// direction fixed by the mapping in `shade` (Cycles' convention after the axis change).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Environment {
+    /// Name (unique in a scene): a state name or the file stem of its source.
+    pub name: String,
+    pub width: usize,
+    pub height: usize,
+    /// Row-major RGB, `width * height` texels.
+    pub pixels: Vec<[f32; 3]>,
+}
+
+impl Environment {
+    pub fn new(
+        name: impl Into<String>,
+        width: usize,
+        height: usize,
+        pixels: Vec<[f32; 3]>,
+    ) -> Self {
+        assert_eq!(pixels.len(), width * height, "texel count");
+        Environment {
+            name: name.into(),
+            width,
+            height,
+            pixels,
+        }
+    }
+
+    /// A uniform environment (the white furnace).
+    pub fn constant(name: impl Into<String>, width: usize, height: usize, rgb: [f32; 3]) -> Self {
+        Self::new(name, width, height, vec![rgb; width * height])
+    }
+
+    /// Solid angle of a texel in row `y`: the sin θ Jacobian of the lat-long map.
+    pub fn texel_solid_angle(&self, y: usize) -> f64 {
+        let h = self.height as f64;
+        let dphi = 2.0 * std::f64::consts::PI / self.width as f64;
+        let t0 = std::f64::consts::PI * y as f64 / h;
+        let t1 = std::f64::consts::PI * (y + 1) as f64 / h;
+        dphi * (t0.cos() - t1.cos())
+    }
+
+    /// ∫ L dω per channel: the energy that resampling must keep.
+    pub fn integral(&self) -> [f64; 3] {
+        let mut sum = [0.0f64; 3];
+        for y in 0..self.height {
+            let w = self.texel_solid_angle(y);
+            for p in &self.pixels[y * self.width..(y + 1) * self.width] {
+                for c in 0..3 {
+                    sum[c] += p[c] as f64 * w;
+                }
+            }
+        }
+        sum
+    }
+
+    /// Resamples to `width` x `height` by exact area weighting on the sphere: each target texel
+    /// is the solid-angle-weighted mean of the source texels it overlaps, so ∫ L dω is kept
+    /// (up to rounding) for any source and target size, up or down.
+    pub fn resample(&self, width: usize, height: usize) -> Environment {
+        assert!(width > 0 && height > 0, "target size");
+        let (sw, sh) = (self.width, self.height);
+        // 1D overlaps; phi is uniform, theta weights by cos θ0 − cos θ1.
+        let overlaps = |n_src: usize, n_dst: usize, weight: &dyn Fn(f64, f64) -> f64| {
+            let mut out: Vec<Vec<(usize, f64)>> = vec![Vec::new(); n_dst];
+            for (d, row) in out.iter_mut().enumerate() {
+                let d0 = d as f64 / n_dst as f64;
+                let d1 = (d + 1) as f64 / n_dst as f64;
+                let s_lo = (d0 * n_src as f64).floor() as usize;
+                let s_hi = ((d1 * n_src as f64).ceil() as usize).min(n_src);
+                for s in s_lo..s_hi {
+                    let a = d0.max(s as f64 / n_src as f64);
+                    let b = d1.min((s + 1) as f64 / n_src as f64);
+                    if b > a {
+                        row.push((s, weight(a, b)));
+                    }
+                }
+            }
+            out
+        };
+        let pi = std::f64::consts::PI;
+        let col_w = overlaps(sw, width, &|a, b| b - a);
+        let row_w = overlaps(sh, height, &|a, b| (pi * a).cos() - (pi * b).cos());
+        let mut pixels = vec![[0.0f32; 3]; width * height];
+        for (y, rows) in row_w.iter().enumerate() {
+            for (x, cols) in col_w.iter().enumerate() {
+                let mut acc = [0.0f64; 3];
+                let mut wsum = 0.0f64;
+                for &(sy, wy) in rows {
+                    for &(sx, wx) in cols {
+                        let w = wy * wx;
+                        let p = self.pixels[sy * sw + sx];
+                        for c in 0..3 {
+                            acc[c] += p[c] as f64 * w;
+                        }
+                        wsum += w;
+                    }
+                }
+                if wsum > 0.0 {
+                    pixels[y * width + x] = [
+                        (acc[0] / wsum) as f32,
+                        (acc[1] / wsum) as f32,
+                        (acc[2] / wsum) as f32,
+                    ];
+                }
+            }
+        }
+        Environment::new(self.name.clone(), width, height, pixels)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pattern(w: usize, h: usize) -> Environment {
+        let px = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                [
+                    (x * 7 % 13) as f32 + 0.1,
+                    (y * 3 % 5) as f32,
+                    ((x + y) % 4) as f32 * 10.0,
+                ]
+            })
+            .collect();
+        Environment::new("p", w, h, px)
+    }
+
+    #[test]
+    fn resample_keeps_energy_down_and_up() {
+        let env = pattern(96, 48);
+        let e0 = env.integral();
+        for (w, h) in [(32, 16), (256, 128), (50, 27), (1, 1)] {
+            let e1 = env.resample(w, h).integral();
+            for c in 0..3 {
+                // f32 texels: relative error of a sum of ~5k terms stays near 1e-6.
+                assert!(
+                    (e0[c] - e1[c]).abs() <= 1e-5 * e0[c].abs().max(1.0),
+                    "{w}x{h} ch {c}: {} vs {}",
+                    e0[c],
+                    e1[c]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn resample_to_same_size_is_identity_and_constant_stays_constant() {
+        let env = pattern(16, 8);
+        assert_eq!(env.resample(16, 8).pixels, env.pixels);
+        let c = Environment::constant("c", 40, 20, [2.0, 1.0, 0.5]);
+        for p in c.resample(7, 5).pixels {
+            for (a, b) in p.iter().zip([2.0, 1.0, 0.5]) {
+                assert!((a - b).abs() < 1e-6);
+            }
+        }
+    }
+
+    #[test]
+    fn solid_angles_sum_to_four_pi() {
+        let env = Environment::constant("c", 8, 13, [1.0; 3]);
+        let total: f64 = (0..13).map(|y| env.texel_solid_angle(y) * 8.0).sum();
+        assert!((total - 4.0 * std::f64::consts::PI).abs() < 1e-12);
+    }
+}

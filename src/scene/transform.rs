@@ -1,0 +1,161 @@
+//! Rigid transforms: how a state or a layout places an object relative to the reference state
+//! (DESIGN §2 "object frame").
+
+use glam::{Mat3, Mat4, Quat, Vec3};
+
+/// A rotation followed by a translation, x ↦ R x + t. Stored as the glTF node stores it, so
+/// files round-trip bit for bit.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Rigid {
+    /// Unit quaternion (x, y, z, w).
+    pub rotation: [f32; 4],
+    /// Translation, metres.
+    pub translation: [f32; 3],
+}
+
+impl Default for Rigid {
+    fn default() -> Self {
+        Self::IDENTITY
+    }
+}
+
+/// Tolerance on RᵀR − I and det R − 1 when a 4x4 matrix is accepted as rigid. Matrices written
+/// as decimal text by Blender carry ~1e-7 relative error; a real scale or shear is far larger.
+pub const RIGID_TOLERANCE: f32 = 1e-4;
+
+impl Rigid {
+    pub const IDENTITY: Rigid = Rigid {
+        rotation: [0.0, 0.0, 0.0, 1.0],
+        translation: [0.0; 3],
+    };
+
+    pub fn is_identity(&self) -> bool {
+        *self == Self::IDENTITY
+    }
+
+    pub fn quat(&self) -> Quat {
+        Quat::from_array(self.rotation)
+    }
+
+    pub fn matrix(&self) -> Mat4 {
+        Mat4::from_rotation_translation(self.quat().normalize(), Vec3::from_array(self.translation))
+    }
+
+    /// Rows of the 4x4 matrix, as layout.json and dataset.json store it.
+    pub fn rows(&self) -> [[f32; 4]; 4] {
+        let m = self.matrix().transpose();
+        [
+            m.x_axis.to_array(),
+            m.y_axis.to_array(),
+            m.z_axis.to_array(),
+            m.w_axis.to_array(),
+        ]
+    }
+
+    /// Accepts a 4x4 (rows) that is a rotation plus translation; otherwise says what is wrong.
+    pub fn from_rows(rows: &[[f32; 4]; 4]) -> Result<Rigid, String> {
+        if rows.iter().flatten().any(|x| !x.is_finite()) {
+            return Err("expected finite numbers".into());
+        }
+        let last = rows[3];
+        if last != [0.0, 0.0, 0.0, 1.0] {
+            return Err(format!("expected last row [0, 0, 0, 1], found {last:?}"));
+        }
+        let r = Mat3::from_cols(
+            Vec3::new(rows[0][0], rows[1][0], rows[2][0]),
+            Vec3::new(rows[0][1], rows[1][1], rows[2][1]),
+            Vec3::new(rows[0][2], rows[1][2], rows[2][2]),
+        );
+        let scales = [r.x_axis.length(), r.y_axis.length(), r.z_axis.length()];
+        if scales.iter().any(|s| (s - 1.0).abs() > RIGID_TOLERANCE) {
+            return Err(format!(
+                "expected a rigid transform (rotation and translation), found scale ({:.6}, {:.6}, {:.6})",
+                scales[0], scales[1], scales[2]
+            ));
+        }
+        let shear = (r.transpose() * r - Mat3::IDENTITY).to_cols_array();
+        if shear.iter().any(|x| x.abs() > RIGID_TOLERANCE) {
+            return Err(
+                "expected a rigid transform, found shear (the axes are not orthogonal)".into(),
+            );
+        }
+        if r.determinant() < 0.0 {
+            return Err("expected a rotation, found a reflection (negative determinant)".into());
+        }
+        Ok(Rigid {
+            rotation: Quat::from_mat3(&r).normalize().to_array(),
+            translation: [rows[0][3], rows[1][3], rows[2][3]],
+        })
+    }
+
+    /// Composition `self ∘ other`: apply `other`, then `self`.
+    pub fn compose(&self, other: &Rigid) -> Rigid {
+        let q = self.quat() * other.quat();
+        let t =
+            self.quat() * Vec3::from_array(other.translation) + Vec3::from_array(self.translation);
+        Rigid {
+            rotation: q.normalize().to_array(),
+            translation: t.to_array(),
+        }
+    }
+
+    pub fn transform_point(&self, p: [f32; 3]) -> [f32; 3] {
+        (self.quat() * Vec3::from_array(p) + Vec3::from_array(self.translation)).to_array()
+    }
+
+    /// Rotates a surfel's orientation: q ↦ q_T q (eq. state-assembly acts on centres and
+    /// orientations only).
+    pub fn transform_rotation(&self, q: [f32; 4]) -> [f32; 4] {
+        (self.quat() * Quat::from_array(q)).to_array()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_round_trip_and_rejects_scale_and_shear() {
+        let t = Rigid {
+            rotation: Quat::from_rotation_y(0.7).to_array(),
+            translation: [1.0, 2.0, -3.0],
+        };
+        let back = Rigid::from_rows(&t.rows()).unwrap();
+        assert!(back.quat().angle_between(t.quat()) < 1e-5);
+        assert_eq!(back.translation, t.translation);
+
+        let mut scaled = t.rows();
+        for row in scaled.iter_mut().take(3) {
+            row[0] *= 1.1;
+        }
+        assert!(Rigid::from_rows(&scaled).unwrap_err().contains("scale"));
+
+        let mut sheared = Rigid::IDENTITY.rows();
+        sheared[0][1] = 0.3;
+        let s = 1.0 / (1.0f32 + 0.09).sqrt();
+        sheared[0][1] *= s;
+        sheared[1][1] *= s;
+        assert!(Rigid::from_rows(&sheared).unwrap_err().contains("shear"));
+
+        let mut mirrored = Rigid::IDENTITY.rows();
+        mirrored[0][0] = -1.0;
+        assert!(Rigid::from_rows(&mirrored)
+            .unwrap_err()
+            .contains("reflection"));
+    }
+
+    #[test]
+    fn compose_matches_matrices() {
+        let a = Rigid {
+            rotation: Quat::from_rotation_x(0.3).to_array(),
+            translation: [0.5, 0.0, 1.0],
+        };
+        let b = Rigid {
+            rotation: Quat::from_rotation_z(-1.1).to_array(),
+            translation: [0.0, 2.0, 0.0],
+        };
+        let m = a.matrix() * b.matrix();
+        let c = a.compose(&b).matrix();
+        assert!(m.abs_diff_eq(c, 1e-5));
+    }
+}
