@@ -5,12 +5,13 @@ pub mod camera;
 pub mod environment;
 pub mod layout;
 pub mod surfels;
+pub mod synthetic;
 pub mod transform;
 
 pub use camera::Camera;
 pub use environment::Environment;
 pub use layout::Layout;
-pub use surfels::{sh_coeffs, Surfels, MAX_SH_DEGREE, SH_C0};
+pub use surfels::{quat_axes, sh_coeffs, Surfels, MAX_SH_DEGREE, SH_C0};
 pub use transform::Rigid;
 
 use crate::error::{Error, Result};
