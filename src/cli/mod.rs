@@ -32,6 +32,31 @@ pub enum Command {
     Convert(ConvertArgs),
     /// Turn a glTF mesh scene (PBR metallic-roughness) into a surfel scene.
     Surfelize(SurfelizeArgs),
+    /// Read an environment map (any EXR compression, e.g. Blender's DWAB HDRIs), optionally
+    /// resample it (area-weighted, energy kept), and write it as float RGB EXR.
+    Env(EnvArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct EnvArgs {
+    /// Input lat-long environment (.exr).
+    pub input: PathBuf,
+    /// Output environment (.exr, float RGB, ZIP).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Target size WIDTHxHEIGHT, e.g. 256x128 (the paper's per-state environment).
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(usize, usize)>,
+}
+
+fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, found {s:?}"))?;
+    let w: usize = w.parse().map_err(|_| format!("expected a width in pixels, found {w:?}"))?;
+    let h: usize = h.parse().map_err(|_| format!("expected a height in pixels, found {h:?}"))?;
+    if w == 0 || h == 0 || w > 16384 || h > 8192 {
+        return Err(format!("expected a size within 1x1 ..= 16384x8192, found {w}x{h}"));
+    }
+    Ok((w, h))
 }
 
 #[derive(clap::Args, Debug)]
@@ -100,7 +125,32 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Info(a) => info::run(cli, a),
         Command::Convert(a) => convert(cli, a),
         Command::Surfelize(a) => surfelize(cli, a),
+        Command::Env(a) => env(cli, a),
     }
+}
+
+fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {
+    let name = a.input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let env = crate::io::exr::read_environment(&a.input, &name)?;
+    let out = match a.size {
+        Some((w, h)) => env.resample(w, h),
+        None => env.clone(),
+    };
+    crate::io::exr::write_environment(&out, &a.output)?;
+    let (e0, e1) = (env.integral(), out.integral());
+    let report = serde_json::json!({
+        "input": {"width": env.width, "height": env.height, "integral_rgb": e0},
+        "output": {"width": out.width, "height": out.height, "integral_rgb": e1},
+    });
+    if cli.json {
+        println!("{report}");
+    } else if !cli.quiet {
+        eprintln!(
+            "wrote {} ({}x{} -> {}x{}; integral of radiance over the sphere {:.6?} -> {:.6?})",
+            a.output.display(), env.width, env.height, out.width, out.height, e0, e1
+        );
+    }
+    Ok(())
 }
 
 fn convert(cli: &Cli, a: &ConvertArgs) -> Result<()> {

@@ -7,6 +7,9 @@ use exr::prelude::*;
 use std::io::Cursor;
 use std::path::Path;
 
+/// Largest environment accepted: 16384 x 8192 texels (1.5 GiB as f32 RGB).
+pub const MAX_ENVIRONMENT_TEXELS: usize = 16384 * 8192;
+
 fn exr_err(file: &Path, e: exr::error::Error) -> Error {
     match e {
         exr::error::Error::Io(io) => Error::io(file, io),
@@ -32,6 +35,18 @@ pub fn read_environment(path: &Path, name: &str) -> Result<Environment> {
 
 /// Reads an environment from EXR bytes; `source` names them in errors.
 pub fn read_environment_bytes(bytes: &[u8], source: &Path, name: &str) -> Result<Environment> {
+    // Check the declared size before decoding allocates it: a corrupt header must not exhaust memory.
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(|e| exr_err(source, e))?;
+    for header in meta.headers.iter() {
+        let area = header.layer_size.area();
+        if area > MAX_ENVIRONMENT_TEXELS {
+            return Err(Error::invalid(
+                source,
+                "EXR data window",
+                format!("expected an environment of at most {MAX_ENVIRONMENT_TEXELS} texels (16k x 8k), found {} x {}", header.layer_size.width(), header.layer_size.height()),
+            ));
+        }
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

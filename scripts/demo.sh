@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# The main job on the embedded default: set up, generate the small `demo` dataset with Blender's
+# Cycles, export its scene as a glTF mesh scene, surfelize it into a LightFuse scene, show it,
+# and convert it to USD and 3DGS PLY. Outputs go to data/demo/ (ignored by git). Re-running
+# reuses the dataset; pass --fresh to regenerate it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+out=data/demo
+lf=target/release/lightfuse
+if [ "${1:-}" = "--fresh" ] || [ ! -f "$out/dataset/dataset.json" ]; then
+  echo "== generating the demo dataset with Cycles ($out/dataset)"
+  start=$(date +%s)
+  .venv/bin/python blender/generate.py --demo --seed 0 --out "$out/dataset" --force
+  echo "   generated in $(( $(date +%s) - start )) s"
+fi
+echo "== exporting the reference state as a glTF mesh scene"
+.venv/bin/python blender/export_mesh_scene.py --dataset "$out/dataset" --out "$out/mesh_scene.glb"
+echo "== surfelizing"
+"$lf" surfelize "$out/mesh_scene.glb" -o "$out/scene.glb" --spacing 0.01
+"$lf" info "$out/scene.glb"
+echo "== converting"
+"$lf" convert "$out/scene.glb" "$out/scene.usda"
+"$lf" convert "$out/scene.glb" "$out/scene.ply"
+echo "done: $out/scene.glb (open in any KHR_gaussian_splatting viewer), $out/scene.usda, $out/scene.ply"

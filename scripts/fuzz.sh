@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Fuzzes the glTF reader for N seconds (default 60) from seeds written by the library itself.
+# cargo-fuzz needs nightly flags; RUSTC_BOOTSTRAP=1 lets this machine's one stable toolchain
+# accept them.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+secs=${1:-60}
+if ! cargo fuzz --version >/dev/null 2>&1; then
+  echo "fuzz: installing cargo-fuzz" >&2
+  cargo install --locked --quiet cargo-fuzz
+fi
+seeds=fuzz/corpus/gltf_reader
+mkdir -p "$seeds"
+cargo run --quiet --release --example write_random_scene -- "$seeds/seed-d0.glb" 3 0 2>/dev/null
+cargo run --quiet --release --example write_random_scene -- "$seeds/seed-d1.gltf" 4 1 2>/dev/null
+rm -rf "$seeds"/seed-d1.env "$seeds"/seed-d1.bin
+export RUSTC_BOOTSTRAP=1
+cargo fuzz run gltf_reader --sanitizer none -- -max_total_time="$secs" -rss_limit_mb=3072 -max_len=65536 2>&1 | tail -n 5
