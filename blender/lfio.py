@@ -3,7 +3,7 @@
 * OpenEXR (scanline, single part) reader for the NONE, ZIPS and ZIP codecs, and a writer
   (ZIP codec, FLOAT channels).  This is all the scripts need: Cycles writes its multilayer
   render results uncompressed, and every dataset EXR is written here.  Other codecs (for
-  example the PIZ-compressed HDRIs bundled with Blender) are read through ``bpy`` instead
+  example the PIZ/DWAB-compressed HDRIs bundled with Blender) are read through ``bpy`` instead
   (:func:`load_image_bpy`).
 * 8-bit greyscale PNG writer/reader (object-id masks).
 

@@ -1,0 +1,360 @@
+"""Procedural rooms for the LightFuse dataset generator (no asset downloads).
+
+A preset is an open room (floor + two walls, no ceiling, so the environment lights it), static
+furniture (the background, object id 0) and 3-5 movable objects built from primitives (boxes,
+cylinders, cones, spheres, tori), with Principled BSDF materials that span diffuse, glossy and
+metallic, several with spatially varying (procedural, object-space) base colour.
+
+Each movable object's origin is the centre of its footprint at its base, so "resting on a
+surface" is "origin z = surface height".  :func:`arrange` places the movable objects on the
+floor or on furniture tops with a seeded rejection sampler (footprint circles must not overlap
+each other, the furniture or the walls).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+import bmesh
+import bpy
+import mathutils
+import numpy as np
+
+# ----------------------------------------------------------------------------- materials
+
+# name: (kind, params). kind: "plain" colour, or a procedural texture of two colours.
+MATERIALS = {
+    "wall": dict(color=(0.70, 0.68, 0.62), roughness=0.9),
+    "wall_blue": dict(color=(0.35, 0.45, 0.60), roughness=0.85),
+    "floor_wood": dict(tex="wave", c1=(0.42, 0.25, 0.12), c2=(0.25, 0.13, 0.06), scale=2.0, roughness=0.45),
+    "floor_tiles": dict(tex="checker", c1=(0.80, 0.80, 0.78), c2=(0.15, 0.16, 0.18), scale=2.5, roughness=0.3),
+    "carpet": dict(tex="noise", c1=(0.55, 0.20, 0.20), c2=(0.25, 0.10, 0.12), scale=6.0, roughness=1.0),
+    "wood": dict(tex="wave", c1=(0.55, 0.35, 0.18), c2=(0.35, 0.20, 0.09), scale=4.0, roughness=0.5),
+    "fabric_green": dict(tex="noise", c1=(0.20, 0.45, 0.25), c2=(0.10, 0.28, 0.14), scale=12.0, roughness=0.95),
+    "fabric_grey": dict(color=(0.45, 0.45, 0.48), roughness=0.95),
+    "linen": dict(color=(0.85, 0.83, 0.78), roughness=0.9),
+    "red_gloss": dict(color=(0.75, 0.06, 0.05), roughness=0.2),
+    "blue_gloss": dict(color=(0.08, 0.20, 0.70), roughness=0.25),
+    "yellow_matte": dict(color=(0.85, 0.65, 0.10), roughness=0.85),
+    "ceramic_white": dict(color=(0.90, 0.90, 0.88), roughness=0.15),
+    "checker_toy": dict(tex="checker", c1=(0.90, 0.85, 0.10), c2=(0.10, 0.35, 0.80), scale=6.0, roughness=0.4),
+    "stripes": dict(tex="wave", c1=(0.85, 0.30, 0.10), c2=(0.95, 0.90, 0.80), scale=5.0, roughness=0.35, bands=True),
+    "gold": dict(color=(1.00, 0.77, 0.34), roughness=0.25, metallic=1.0),
+    "steel": dict(color=(0.62, 0.62, 0.64), roughness=0.3, metallic=1.0),
+    "copper": dict(color=(0.95, 0.60, 0.45), roughness=0.35, metallic=1.0),
+    "black_plastic": dict(color=(0.03, 0.03, 0.035), roughness=0.3),
+    "terracotta": dict(tex="noise", c1=(0.70, 0.32, 0.18), c2=(0.55, 0.24, 0.13), scale=20.0, roughness=0.8),
+}
+
+
+def make_material(name: str) -> bpy.types.Material:
+    """Principled BSDF; its base colour also goes to the 'albedo' AOV (dataset albedo)."""
+    if name in bpy.data.materials:
+        return bpy.data.materials[name]
+    spec = MATERIALS[name]
+    mat = bpy.data.materials.new(name)
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.name = "Principled BSDF"
+    bsdf.distribution = "GGX"  # single-scattering GGX: closer to LightFuse's BRDF than multiscatter
+    bsdf.inputs["Metallic"].default_value = spec.get("metallic", 0.0)
+    bsdf.inputs["Roughness"].default_value = spec["roughness"]
+    nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    aov = nt.nodes.new("ShaderNodeOutputAOV")
+    aov.aov_name = "albedo"
+    if "tex" in spec:
+        tc = nt.nodes.new("ShaderNodeTexCoord")
+        kind = spec["tex"]
+        if kind == "checker":
+            t = nt.nodes.new("ShaderNodeTexChecker")
+            t.inputs["Scale"].default_value = spec["scale"]
+            t.inputs["Color1"].default_value = (*spec["c1"], 1)
+            t.inputs["Color2"].default_value = (*spec["c2"], 1)
+            nt.links.new(tc.outputs["Object"], t.inputs["Vector"])
+            col = t.outputs["Color"]
+        else:
+            if kind == "wave":
+                t = nt.nodes.new("ShaderNodeTexWave")
+                t.wave_type = "BANDS" if spec.get("bands") else "RINGS"
+                t.inputs["Scale"].default_value = spec["scale"]
+                t.inputs["Distortion"].default_value = 0.0 if spec.get("bands") else 2.0
+                t.inputs["Detail"].default_value = 1.0
+            else:
+                t = nt.nodes.new("ShaderNodeTexNoise")
+                t.inputs["Scale"].default_value = spec["scale"]
+                t.inputs["Detail"].default_value = 3.0
+            nt.links.new(tc.outputs["Object"], t.inputs["Vector"])
+            ramp = nt.nodes.new("ShaderNodeMix")
+            ramp.data_type = "RGBA"
+            ramp.inputs["A"].default_value = (*spec["c1"], 1)
+            ramp.inputs["B"].default_value = (*spec["c2"], 1)
+            nt.links.new(t.outputs["Fac"], ramp.inputs["Factor"])
+            col = ramp.outputs["Result"]
+        nt.links.new(col, bsdf.inputs["Base Color"])
+        nt.links.new(col, aov.inputs["Color"])
+    else:
+        bsdf.inputs["Base Color"].default_value = (*spec["color"], 1)
+        aov.inputs["Color"].default_value = (*spec["color"], 1)
+    return mat
+
+
+# ----------------------------------------------------------------------------- geometry
+
+
+def _xf(loc=(0, 0, 0), rot=(0, 0, 0)):
+    return mathutils.Matrix.Translation(loc) @ mathutils.Euler(rot).to_matrix().to_4x4()
+
+
+def _torus(bm, R, r, mat, seg=32, rseg=12):
+    verts = []
+    for i in range(seg):
+        a = 2 * math.pi * i / seg
+        row = []
+        for j in range(rseg):
+            b = 2 * math.pi * j / rseg
+            x = (R + r * math.cos(b)) * math.cos(a)
+            y = (R + r * math.cos(b)) * math.sin(a)
+            z = r * math.sin(b)
+            row.append(bm.verts.new(mat @ mathutils.Vector((x, y, z))))
+        verts.append(row)
+    faces = []
+    for i in range(seg):
+        for j in range(rseg):
+            f = bm.faces.new((verts[i][j], verts[(i + 1) % seg][j],
+                              verts[(i + 1) % seg][(j + 1) % rseg], verts[i][(j + 1) % rseg]))
+            faces.append(f)
+    return faces
+
+
+def build_mesh(name: str, parts: list) -> bpy.types.Object:
+    """parts: (kind, dict, material name). Kinds: box(size, loc, rot), cyl(r, h, loc, rot)
+    (loc = centre of the base), cone(r1, r2, h, loc, rot), sphere(r, loc, scale),
+    torus(R, r, loc, rot).  Curved parts are smooth shaded."""
+    bm = bmesh.new()
+    mats = []
+    for kind, p, mname in parts:
+        if mname not in mats:
+            mats.append(mname)
+        mi = mats.index(mname)
+        before = set(bm.faces)
+        smooth = False
+        if kind == "box":
+            sx, sy, sz = p["size"]
+            m = _xf(p.get("loc", (0, 0, 0)), p.get("rot", (0, 0, 0))) @ mathutils.Matrix.Diagonal((sx, sy, sz, 1))
+            bmesh.ops.create_cube(bm, size=1.0, matrix=m, calc_uvs=True)
+        elif kind in ("cyl", "cone"):
+            r1 = p["r"] if kind == "cyl" else p["r1"]
+            r2 = p["r"] if kind == "cyl" else p["r2"]
+            h = p["h"]
+            m = _xf(p.get("loc", (0, 0, 0)), p.get("rot", (0, 0, 0))) @ mathutils.Matrix.Translation((0, 0, h / 2))
+            bmesh.ops.create_cone(bm, cap_ends=True, cap_tris=False, segments=p.get("seg", 32),
+                                  radius1=r1, radius2=r2, depth=h, matrix=m, calc_uvs=True)
+        elif kind == "sphere":
+            sc = p.get("scale", (1, 1, 1))
+            m = _xf(p.get("loc", (0, 0, 0))) @ mathutils.Matrix.Diagonal((*sc, 1))
+            bmesh.ops.create_uvsphere(bm, u_segments=32, v_segments=16, radius=p["r"], matrix=m, calc_uvs=True)
+            smooth = True
+        elif kind == "torus":
+            _torus(bm, p["R"], p["r"], _xf(p.get("loc", (0, 0, 0)), p.get("rot", (0, 0, 0))))
+            smooth = True
+        else:
+            raise ValueError(kind)
+        for f in set(bm.faces) - before:
+            f.material_index = mi
+            f.smooth = smooth
+    me = bpy.data.meshes.new(name)
+    bm.to_mesh(me)
+    bm.free()
+    for mname in mats:
+        me.materials.append(make_material(mname))
+    ob = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+# ----------------------------------------------------------------------------- catalogue
+
+def obj_parts(kind: str) -> list:
+    """Movable objects; origin at the base centre."""
+    if kind == "ball":
+        return [("sphere", dict(r=0.12, loc=(0, 0, 0.12)), "checker_toy")]
+    if kind == "small_ball":
+        return [("sphere", dict(r=0.07, loc=(0, 0, 0.07)), "red_gloss")]
+    if kind == "orange":
+        return [("sphere", dict(r=0.07, loc=(0, 0, 0.07)), "terracotta")]
+    if kind == "vase":
+        return [("sphere", dict(r=0.09, loc=(0, 0, 0.1), scale=(1, 1, 1.1)), "blue_gloss"),
+                ("cyl", dict(r=0.045, h=0.12, loc=(0, 0, 0.17)), "blue_gloss"),
+                ("cyl", dict(r=0.06, h=0.012, loc=(0, 0, 0.0)), "blue_gloss")]
+    if kind == "pot":
+        return [("cyl", dict(r=0.12, h=0.14, loc=(0, 0, 0)), "steel"),
+                ("torus", dict(R=0.12, r=0.012, loc=(0, 0, 0.14)), "steel"),
+                ("box", dict(size=(0.06, 0.03, 0.02), loc=(0.15, 0, 0.12)), "black_plastic"),
+                ("box", dict(size=(0.06, 0.03, 0.02), loc=(-0.15, 0, 0.12)), "black_plastic")]
+    if kind == "mug":
+        return [("cyl", dict(r=0.045, h=0.1, loc=(0, 0, 0)), "ceramic_white"),
+                ("torus", dict(R=0.03, r=0.008, loc=(0.05, 0, 0.05), rot=(math.pi / 2, 0, 0)), "ceramic_white")]
+    if kind == "ring":
+        return [("torus", dict(R=0.1, r=0.03, loc=(0, 0, 0.03)), "gold")]
+    if kind == "blocks":
+        return [("box", dict(size=(0.16, 0.16, 0.16), loc=(0, 0, 0.08)), "yellow_matte"),
+                ("box", dict(size=(0.12, 0.12, 0.12), loc=(0.01, -0.01, 0.22), rot=(0, 0, 0.4)), "red_gloss"),
+                ("box", dict(size=(0.08, 0.08, 0.08), loc=(-0.01, 0.0, 0.32), rot=(0, 0, 0.9)), "blue_gloss")]
+    if kind == "lamp":
+        return [("cyl", dict(r=0.08, h=0.02, loc=(0, 0, 0)), "copper"),
+                ("cyl", dict(r=0.012, h=0.3, loc=(0, 0, 0.02)), "copper"),
+                ("cone", dict(r1=0.13, r2=0.07, h=0.14, loc=(0, 0, 0.26)), "stripes")]
+    if kind == "kettle":
+        return [("sphere", dict(r=0.1, loc=(0, 0, 0.09), scale=(1, 1, 0.9)), "copper"),
+                ("cyl", dict(r=0.015, h=0.12, loc=(0.08, 0, 0.06), rot=(0, 0.9, 0)), "copper"),
+                ("torus", dict(R=0.06, r=0.01, loc=(0, 0, 0.19), rot=(math.pi / 2, 0, 0)), "black_plastic")]
+    if kind == "books":
+        return [("box", dict(size=(0.22, 0.16, 0.04), loc=(0, 0, 0.02)), "red_gloss"),
+                ("box", dict(size=(0.2, 0.15, 0.035), loc=(0.01, 0, 0.0575), rot=(0, 0, 0.2)), "fabric_green"),
+                ("box", dict(size=(0.18, 0.13, 0.03), loc=(0, 0.01, 0.09), rot=(0, 0, -0.15)), "stripes")]
+    if kind == "cone_toy":
+        return [("cone", dict(r1=0.09, r2=0.0, h=0.22, loc=(0, 0, 0), seg=24), "stripes")]
+    if kind == "plant":
+        return [("cyl", dict(r=0.08, h=0.14, loc=(0, 0, 0)), "terracotta"),
+                ("sphere", dict(r=0.13, loc=(0, 0, 0.24)), "fabric_green")]
+    if kind == "cushion":
+        return [("box", dict(size=(0.35, 0.35, 0.1), loc=(0, 0, 0.05)), "fabric_green")]
+    raise KeyError(kind)
+
+
+def table(name, w, d, h, x, y, mat="wood", top=0.04, leg=0.05):
+    parts = [("box", dict(size=(w, d, top), loc=(x, y, h - top / 2)), mat)]
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            parts.append(("box", dict(size=(leg, leg, h - top),
+                                      loc=(x + sx * (w / 2 - leg), y + sy * (d / 2 - leg), (h - top) / 2)), mat))
+    return name, parts, (x - w / 2, x + w / 2, y - d / 2, y + d / 2), h
+
+
+def block(name, w, d, h, x, y, mat):
+    return name, [("box", dict(size=(w, d, h), loc=(x, y, h / 2)), mat)], (x - w / 2, x + w / 2, y - d / 2, y + d / 2), h
+
+
+# room: half size S (interior x, y in [-S, S]); walls on -y (back) and -x (left) sides.
+PRESETS = {
+    "demo": dict(size=1.2, wall_h=0.8, obj_scale=1.5, floor="floor_tiles", wall="wall",
+                 furniture=[table("table", 0.8, 0.6, 0.45, 0.25, -0.35)],
+                 surfaces=["table"],
+                 objects=[("ball", "ball"), ("pot", "pot"), ("vase", "vase")]),
+    "bedroom": dict(size=2.0, wall_h=1.3, floor="floor_wood", wall="wall_blue",
+                    furniture=[
+                        ("bed", [("box", dict(size=(1.5, 2.0, 0.35), loc=(-1.2, -0.95, 0.175)), "wood"),
+                                 ("box", dict(size=(1.45, 1.95, 0.18), loc=(-1.2, -0.95, 0.44)), "linen"),
+                                 ("box", dict(size=(1.5, 0.08, 0.9), loc=(-1.2, -1.96, 0.45)), "wood")],
+                         (-1.95, -0.45, -2.0, 0.05), 0.53),
+                        table("nightstand", 0.45, 0.45, 0.5, 0.05, -1.7),
+                        block("rug", 1.4, 1.0, 0.01, 0.6, 0.6, "carpet"),
+                        table("desk", 1.0, 0.55, 0.72, 1.4, -1.65)],
+                    surfaces=["nightstand", "desk", ("bed", (-1.9, -0.5, -1.85, 0.0))],
+                    objects=[("lamp", "lamp"), ("books", "books"), ("ball", "ball"), ("vase", "vase"),
+                             ("cushion", "cushion")]),
+    "playroom": dict(size=2.0, wall_h=1.2, floor="carpet", wall="wall",
+                     furniture=[table("low_table", 1.0, 0.7, 0.4, 0.6, -0.8, mat="yellow_matte"),
+                                block("shelf", 1.2, 0.35, 0.9, -1.2, -1.8, "wood"),
+                                block("toy_box", 0.6, 0.45, 0.35, -1.6, 0.3, "blue_gloss")],
+                     surfaces=["low_table", "shelf", "toy_box"],
+                     objects=[("blocks", "blocks"), ("ball", "ball"), ("ring", "ring"), ("cone_toy", "cone_toy"),
+                              ("small_ball", "small_ball")]),
+    "livingroom": dict(size=2.2, wall_h=1.3, floor="floor_wood", wall="wall",
+                       furniture=[
+                           ("sofa", [("box", dict(size=(2.0, 0.85, 0.42), loc=(-0.3, -1.72, 0.21)), "fabric_grey"),
+                                     ("box", dict(size=(2.0, 0.2, 0.45), loc=(-0.3, -2.05, 0.65)), "fabric_grey"),
+                                     ("box", dict(size=(0.2, 0.85, 0.25), loc=(-1.2, -1.72, 0.545)), "fabric_grey"),
+                                     ("box", dict(size=(0.2, 0.85, 0.25), loc=(0.6, -1.72, 0.545)), "fabric_grey")],
+                            (-1.3, 0.7, -2.15, -1.3), 0.42),
+                           table("coffee_table", 1.1, 0.6, 0.4, -0.3, -0.5),
+                           block("tv_stand", 0.45, 1.4, 0.5, -1.95, 0.7, "black_plastic"),
+                           block("rug", 1.8, 1.2, 0.01, -0.3, -0.4, "carpet")],
+                       surfaces=["coffee_table", "tv_stand", ("sofa", (-1.1, 0.5, -1.95, -1.3))],
+                       objects=[("vase", "vase"), ("plant", "plant"), ("mug", "mug"), ("books", "books"),
+                                ("ring", "ring")]),
+    "kitchen": dict(size=2.0, wall_h=1.4, floor="floor_tiles", wall="wall",
+                    furniture=[block("counter", 2.4, 0.6, 0.9, -0.4, -1.7, "ceramic_white"),
+                               block("counter_side", 0.6, 1.4, 0.9, -1.7, -0.3, "wood"),
+                               table("dining_table", 1.0, 0.8, 0.75, 0.7, 0.5)],
+                    surfaces=["counter", "counter_side", "dining_table"],
+                    objects=[("pot", "pot"), ("kettle", "kettle"), ("mug", "mug"), ("plant", "plant"),
+                             ("orange", "orange")]),
+}
+
+
+def build_scene(preset: str) -> dict:
+    """Create the static room and the movable objects at the origin.  Returns a description:
+    {size, surfaces: {name: (rect, z)}, obstacles: [rect], movables: [(name, object, radius)]}."""
+    P = PRESETS[preset]
+    S = P["size"]
+    T = 0.1  # wall / floor thickness
+    build_mesh("floor", [("box", dict(size=(2 * S + 2 * T, 2 * S + 2 * T, T), loc=(0, 0, -T / 2)), P["floor"])])
+    build_mesh("walls", [("box", dict(size=(2 * S + 2 * T, T, P["wall_h"]), loc=(0, -S - T / 2, P["wall_h"] / 2)), P["wall"]),
+                         ("box", dict(size=(T, 2 * S, P["wall_h"]), loc=(-S - T / 2, 0, P["wall_h"] / 2)), P["wall"])])
+    surfaces = {"floor": ((-S, S, -S, S), 0.0)}
+    obstacles = []
+    surf_rects = {}
+    for sname in P["surfaces"]:
+        if isinstance(sname, tuple):
+            surf_rects[sname[0]] = sname[1]
+        else:
+            surf_rects[sname] = None
+    for name, parts, rect, top in P["furniture"]:
+        build_mesh(name, parts)
+        obstacles.append(rect)  # (a rug too: objects stand on the floor, not half in a rug)
+        if name in surf_rects:
+            surfaces[name] = (surf_rects[name] or rect, top)
+    movables = []
+    for name, kind in P["objects"]:
+        parts = obj_parts(kind)
+        ob = build_mesh(name, parts)
+        k = P.get("obj_scale", 1.0)
+        if k != 1.0:
+            ob.data.transform(mathutils.Matrix.Scale(k, 4))
+        co = np.array([v.co[:] for v in ob.data.vertices])
+        radius = float(np.max(np.linalg.norm(co[:, :2], axis=1)))
+        height = float(co[:, 2].max())
+        movables.append((name, ob, radius, height))
+    return dict(size=S, surfaces=surfaces, obstacles=obstacles, movables=movables)
+
+
+def _circle_rect_overlap(c, r, rect):
+    x0, x1, y0, y1 = rect
+    dx = max(x0 - c[0], 0, c[0] - x1)
+    dy = max(y0 - c[1], 0, c[1] - y1)
+    return dx * dx + dy * dy < r * r
+
+
+def arrange(desc: dict, rng: random.Random, margin: float = 0.02) -> dict:
+    """A physically plausible arrangement: {object name: 4x4 Blender world matrix}.
+    Objects stand upright on the floor or a furniture top (z = surface height), with a random
+    yaw; footprint circles don't overlap each other, the furniture or the walls."""
+    placed = []  # (surface, centre, radius)
+    out = {}
+    names = list(desc["surfaces"])
+    for name, ob, radius, height in desc["movables"]:
+        r = radius + margin
+        for _attempt in range(2000):
+            surf = rng.choice(names)
+            (x0, x1, y0, y1), z = desc["surfaces"][surf]
+            if x1 - x0 < 2 * r or y1 - y0 < 2 * r:
+                continue
+            c = (rng.uniform(x0 + r, x1 - r), rng.uniform(y0 + r, y1 - r))
+            if surf == "floor" and any(_circle_rect_overlap(c, r, o) for o in desc["obstacles"]):
+                continue
+            if any(s == surf and math.dist(c, pc) < r + pr for s, pc, pr in placed):
+                continue
+            break
+        else:
+            raise RuntimeError(f"could not place {name}")
+        placed.append((surf, c, r))
+        yaw = rng.uniform(-math.pi, math.pi)
+        m = _xf((c[0], c[1], z), (0, 0, yaw))
+        out[name] = np.array(m)
+    return out
