@@ -561,7 +561,7 @@ fn read_primitive(
         let normal = t.map(|i| {
             normals
                 .as_ref()
-                .map(|ns| (normal_matrix * DVec3::from_array(ns[i as usize].map(f64::from))))
+                .map(|ns| normal_matrix * DVec3::from_array(ns[i as usize].map(f64::from)))
                 .filter(|v| v.length_squared() > 1e-24 && v.is_finite())
                 .map(|v| v.normalize())
                 .unwrap_or(face)

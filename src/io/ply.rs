@@ -58,7 +58,6 @@ pub fn write_state(scene: &Scene, state: &State, path: &Path) -> Result<()> {
         let mut row: Vec<f32> = Vec::with_capacity(17 + 3 * rest);
         for (c, t) in scene.components.iter().zip(&state.transforms) {
             let s = &c.surfels;
-            let stride = s.sh_stride();
             for i in 0..s.len() {
                 row.clear();
                 let q = t.transform_rotation(s.rotation[i]);
@@ -67,7 +66,7 @@ pub fn write_state(scene: &Scene, state: &State, path: &Path) -> Result<()> {
                 let sh = s.sh_of(i);
                 row.extend_from_slice(&sh[0]);
                 for ch in 0..3 {
-                    row.extend((1..=rest).map(|j| if j < stride { sh[j][ch] } else { 0.0 }));
+                    row.extend((1..=rest).map(|j| sh.get(j).map_or(0.0, |c| c[ch])));
                 }
                 row.push(logit(s.opacity[i]));
                 row.extend_from_slice(&[s.scale[i][0].ln(), s.scale[i][1].ln(), FLAT_LOG_SCALE]);
