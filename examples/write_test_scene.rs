@@ -1,68 +1,13 @@
-//! Writes a deterministic random scene for tests of other tools (usd-core, Blender):
+//! Writes a deterministic random scene for tests of other tools (usd-core, Blender, the fuzzer's
+//! seeds); names with dots, mixed SH degrees, moved objects, environments per state:
 //! `cargo run --release --example write_test_scene -- <out.usda|out.glb> [surfels per component]`.
 //! Beside it, `<out>.expected.json` lists what a reader must find: names, prim paths, variants,
 //! and the first surfels' values as f32 bit patterns (exact to compare, no decimal rounding).
 
-use lightfuse::scene::{sh_coeffs, Component, EnvRef, Environment, Rigid, Scene, State, Surfels};
+use lightfuse::scene::synthetic::{random_surfels as surfels, SplitMix as Rng};
+use lightfuse::scene::{Component, EnvRef, Environment, Rigid, Scene, State};
 use serde_json::{json, Value};
 use std::path::PathBuf;
-
-struct Rng(u64);
-
-impl Rng {
-    fn u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f32 {
-        (self.u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.unit()
-    }
-    fn quat(&mut self) -> [f32; 4] {
-        let q = [
-            self.range(-1.0, 1.0),
-            self.range(-1.0, 1.0),
-            self.range(-1.0, 1.0),
-            self.range(0.1, 1.0),
-        ];
-        let n = q.iter().map(|x| x * x).sum::<f32>().sqrt();
-        q.map(|x| x / n)
-    }
-}
-
-fn surfels(rng: &mut Rng, n: usize, degree: u8) -> Surfels {
-    let mut s = Surfels::with_sh_degree(degree);
-    let mut sh = vec![[0.0f32; 3]; sh_coeffs(degree)];
-    for _ in 0..n {
-        for c in sh.iter_mut() {
-            *c = [
-                rng.range(-2.0, 2.0),
-                rng.range(-2.0, 2.0),
-                rng.range(-2.0, 2.0),
-            ];
-        }
-        s.push(
-            [
-                rng.range(-3.0, 3.0),
-                rng.range(0.0, 2.5),
-                rng.range(-3.0, 3.0),
-            ],
-            rng.quat(),
-            [rng.range(0.001, 0.05), rng.range(0.001, 0.05)],
-            rng.unit(),
-            &sh,
-            [rng.unit(), rng.unit(), rng.unit()],
-            rng.unit(),
-            rng.unit(),
-        );
-    }
-    s
-}
 
 fn scene(n: usize) -> Scene {
     let mut rng = Rng(20_240_601);
@@ -92,7 +37,7 @@ fn scene(n: usize) -> Scene {
                         Rigid::IDENTITY
                     } else {
                         Rigid {
-                            rotation: rng.quat(),
+                            rotation: rng.unit_quat(),
                             translation: [rng.range(-1.0, 1.0), 0.0, rng.range(-1.0, 1.0)],
                         }
                     }

@@ -11,8 +11,8 @@ if ! cargo fuzz --version >/dev/null 2>&1; then
 fi
 seeds=fuzz/corpus/gltf_reader
 mkdir -p "$seeds"
-cargo run --quiet --release --example write_random_scene -- "$seeds/seed-d0.glb" 3 0 2>/dev/null
-cargo run --quiet --release --example write_random_scene -- "$seeds/seed-d1.gltf" 4 1 2>/dev/null
-rm -rf "$seeds"/seed-d1.env "$seeds"/seed-d1.bin
+cargo run --quiet --release --example write_test_scene -- "$seeds/seed.glb" 4 2>/dev/null
+cargo run --quiet --release --example write_test_scene -- "$seeds/seed.gltf" 4 2>/dev/null
+rm -rf "$seeds"/seed.env "$seeds"/seed.bin "$seeds"/*.expected.json
 export RUSTC_BOOTSTRAP=1
 cargo fuzz run gltf_reader --sanitizer none -- -max_total_time="$secs" -rss_limit_mb=3072 -max_len=65536 2>&1 | tail -n 5

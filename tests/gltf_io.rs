@@ -467,3 +467,95 @@ fn reader_handles_strided_views_and_data_uris() {
     assert_eq!(io::read_scene(&p).unwrap(), scene());
     let _ = gltf::KHR;
 }
+
+#[test]
+fn glb_to_usda_to_glb_preserves_every_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a.glb");
+    io::write_scene(&scene(), &a).unwrap();
+    for (from, to) in [("a.glb", "b.usda"), ("b.usda", "c.glb")] {
+        let out = Command::new(bin())
+            .arg("convert")
+            .arg(dir.path().join(from))
+            .arg(dir.path().join(to))
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{from} -> {to}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert_eq!(io::read_scene(&dir.path().join("b.usda")).unwrap(), scene());
+    assert_eq!(
+        std::fs::read(&a).unwrap(),
+        std::fs::read(dir.path().join("c.glb")).unwrap()
+    );
+}
+
+#[test]
+fn ply_export_has_the_3dgs_layout() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = scene();
+    let p = dir.path().join("s.ply");
+    let out = Command::new(bin())
+        .arg("convert")
+        .arg(dir.path().join("missing.glb"))
+        .arg(&p)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let g = dir.path().join("s.glb");
+    io::write_scene(&s, &g).unwrap();
+    let out = Command::new(bin())
+        .arg("convert")
+        .arg(&g)
+        .arg(&p)
+        .args(["--state", "state1"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(&p).unwrap();
+    let end = b"end_header\n";
+    let h = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+    let header = std::str::from_utf8(&bytes[..h]).unwrap();
+    let props: Vec<&str> = header
+        .lines()
+        .filter_map(|l| l.strip_prefix("property float "))
+        .collect();
+    assert!(header.contains(&format!("element vertex {}", s.surfel_count())));
+    assert_eq!(
+        &props[..9],
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    );
+    assert_eq!(
+        props.iter().filter(|p| p.starts_with("f_rest_")).count(),
+        45
+    );
+    assert_eq!(
+        &props[props.len() - 8..],
+        ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    );
+    let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes[h..]);
+    let row = props.len();
+    assert_eq!(floats.len(), row * s.surfel_count());
+    // Object 1's first surfel, placed as in state1: centre moved, log scale, logit opacity,
+    // rotation (w, x, y, z), and the channel-major f_rest of the 3DGS reference code.
+    let (c, t) = (&s.components[1].surfels, s.states[1].transforms[1]);
+    let r = &floats[row * s.components[0].surfels.len()..][..row];
+    let want_p = t.transform_point(c.position[0]);
+    for k in 0..3 {
+        assert!((r[k] - want_p[k]).abs() < 1e-6);
+    }
+    assert!((r[row - 7] - c.scale[0][0].ln()).abs() < 1e-6);
+    let a = c.opacity[0];
+    assert!((r[row - 8] - (a / (1.0 - a)).ln()).abs() < 1e-4);
+    let q = t.transform_rotation(c.rotation[0]);
+    assert!((r[row - 4] - q[3]).abs() < 1e-6 && (r[row - 3] - q[0]).abs() < 1e-6);
+    assert_eq!(r[9], c.sh_of(0)[1][0]); // f_rest_0: red, coefficient 1
+    assert_eq!(r[9 + 15], c.sh_of(0)[1][1]); // f_rest_15: green, coefficient 1
+}

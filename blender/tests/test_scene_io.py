@@ -170,16 +170,16 @@ def test_export_mesh_scene(tiny_dataset, tmp_path):
     assert px.std() > 0.02
 
 
-RUST_WRITER = os.path.join(os.path.dirname(lf.HERE), "target", "debug", "examples", "write_random_scene")
+RUST_WRITER = os.path.join(os.path.dirname(lf.HERE), "target", "debug", "examples", "write_test_scene")
 
 
-@pytest.mark.skipif(not os.path.isfile(RUST_WRITER), reason="Rust example write_random_scene not built")
 def test_import_a_scene_written_by_the_rust_writer(tmp_path):
-    """If the Rust example is built: its .glb imports, and state1 exports as state1's transforms."""
+    """The Rust writer's .glb imports, and state1 exports as state1's transforms."""
     import subprocess
 
+    assert os.path.isfile(RUST_WRITER), "build the Rust examples first (cargo test builds them)"
     glb = tmp_path / "rust.glb"
-    subprocess.run([RUST_WRITER, str(glb), "3", "3"], check=True, capture_output=True)
+    subprocess.run([RUST_WRITER, str(glb), "20"], check=True, capture_output=True)
     blend = tmp_path / "rust.blend"
     run_script("import_scene.py", glb, "--state", "state1", "--out", blend)
     out = tmp_path / "layout.json"

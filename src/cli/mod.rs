@@ -50,11 +50,19 @@ pub struct EnvArgs {
 }
 
 fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, found {s:?}"))?;
-    let w: usize = w.parse().map_err(|_| format!("expected a width in pixels, found {w:?}"))?;
-    let h: usize = h.parse().map_err(|_| format!("expected a height in pixels, found {h:?}"))?;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, found {s:?}"))?;
+    let w: usize = w
+        .parse()
+        .map_err(|_| format!("expected a width in pixels, found {w:?}"))?;
+    let h: usize = h
+        .parse()
+        .map_err(|_| format!("expected a height in pixels, found {h:?}"))?;
     if w == 0 || h == 0 || w > 16384 || h > 8192 {
-        return Err(format!("expected a size within 1x1 ..= 16384x8192, found {w}x{h}"));
+        return Err(format!(
+            "expected a size within 1x1 ..= 16384x8192, found {w}x{h}"
+        ));
     }
     Ok((w, h))
 }
@@ -130,7 +138,11 @@ pub fn run(cli: &Cli) -> Result<()> {
 }
 
 fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {
-    let name = a.input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = a
+        .input
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let env = crate::io::exr::read_environment(&a.input, &name)?;
     let out = match a.size {
         Some((w, h)) => env.resample(w, h),
@@ -147,7 +159,13 @@ fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {
     } else if !cli.quiet {
         eprintln!(
             "wrote {} ({}x{} -> {}x{}; integral of radiance over the sphere {:.6?} -> {:.6?})",
-            a.output.display(), env.width, env.height, out.width, out.height, e0, e1
+            a.output.display(),
+            env.width,
+            env.height,
+            out.width,
+            out.height,
+            e0,
+            e1
         );
     }
     Ok(())
@@ -195,7 +213,13 @@ fn surfelize(cli: &Cli, a: &SurfelizeArgs) -> Result<()> {
         [none] if none == "none" => ObjectSelection::None,
         names => ObjectSelection::Named(names.to_vec()),
     };
-    let opts = SurfelizeOptions { spacing: a.spacing, objects, opacity: a.opacity, sh_degree: a.sh_degree, seed: a.seed };
+    let opts = SurfelizeOptions {
+        spacing: a.spacing,
+        objects,
+        opacity: a.opacity,
+        sh_degree: a.sh_degree,
+        seed: a.seed,
+    };
     // Check the output's format before the work, so a typo fails at once.
     crate::io::SceneFormat::from_path(&a.output)?;
     let mesh = crate::io::mesh::read_mesh_scene(&a.mesh)?;
@@ -204,8 +228,17 @@ fn surfelize(cli: &Cli, a: &SurfelizeArgs) -> Result<()> {
     if cli.json {
         println!("{}", info::summary(&scene));
     } else if !cli.quiet {
-        let parts: Vec<_> = scene.components.iter().map(|c| format!("{} {}", c.name, c.surfels.len())).collect();
-        eprintln!("wrote {}: {} surfels ({})", a.output.display(), scene.surfel_count(), parts.join(", "));
+        let parts: Vec<_> = scene
+            .components
+            .iter()
+            .map(|c| format!("{} {}", c.name, c.surfels.len()))
+            .collect();
+        eprintln!(
+            "wrote {}: {} surfels ({})",
+            a.output.display(),
+            scene.surfel_count(),
+            parts.join(", ")
+        );
     }
     Ok(())
 }

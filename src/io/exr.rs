@@ -36,7 +36,8 @@ pub fn read_environment(path: &Path, name: &str) -> Result<Environment> {
 /// Reads an environment from EXR bytes; `source` names them in errors.
 pub fn read_environment_bytes(bytes: &[u8], source: &Path, name: &str) -> Result<Environment> {
     // Check the declared size before decoding allocates it: a corrupt header must not exhaust memory.
-    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(|e| exr_err(source, e))?;
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(|e| exr_err(source, e))?;
     for header in meta.headers.iter() {
         let area = header.layer_size.area();
         if area > MAX_ENVIRONMENT_TEXELS {

@@ -813,7 +813,16 @@ impl<'a> Reader<'a> {
                 ),
             ));
         }
-        let data = bytes.get(a.byte_offset..).ok_or_else(|| self.err(format!("{afield}.byteOffset"), format!("offset {} is past the end of bufferView {view} ({} bytes)", a.byte_offset, bytes.len())))?;
+        let data = bytes.get(a.byte_offset..).ok_or_else(|| {
+            self.err(
+                format!("{afield}.byteOffset"),
+                format!(
+                    "offset {} is past the end of bufferView {view} ({} bytes)",
+                    a.byte_offset,
+                    bytes.len()
+                ),
+            )
+        })?;
         if stride == elem {
             Ok(bytemuck::pod_collect_to_vec(&data[..a.count * elem]))
         } else {
