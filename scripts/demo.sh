@@ -16,8 +16,8 @@ if [ "${1:-}" = "--fresh" ] || [ ! -f "$out/dataset/dataset.json" ]; then
 fi
 echo "== exporting the reference state as a glTF mesh scene"
 .venv/bin/python blender/export_mesh_scene.py --dataset "$out/dataset" --out "$out/mesh_scene.glb"
-echo "== surfelizing"
-"$lf" surfelize "$out/mesh_scene.glb" -o "$out/scene.glb" --spacing 0.01
+echo "== surfelizing (oracle scene: every state with its ground-truth poses and environment)"
+"$lf" surfelize "$out/mesh_scene.glb" -o "$out/scene.glb" --spacing 0.01 --dataset "$out/dataset" --env-size 256x128
 "$lf" info "$out/scene.glb"
 echo "== converting"
 "$lf" convert "$out/scene.glb" "$out/scene.usda"

@@ -23,8 +23,14 @@ pub fn summary(scene: &Scene) -> serde_json::Value {
         .map(|s| {
             let moved: Vec<_> = scene.components.iter().zip(&s.transforms).filter(|(_, t)| !t.is_identity()).map(|(c, _)| c.name.clone()).collect();
             let bounds = scene.bounds_in_state(s).map(|(lo, hi)| json!({"min": lo, "max": hi}));
+            let component_bounds: serde_json::Map<String, serde_json::Value> = scene
+                .components
+                .iter()
+                .enumerate()
+                .map(|(i, c)| (c.name.clone(), scene.component_bounds_in_state(i, s).map_or(serde_json::Value::Null, |(lo, hi)| json!({"min": lo, "max": hi}))))
+                .collect();
             json!({
-                "name": s.name, "moved_objects": moved, "bounds": bounds,
+                "name": s.name, "moved_objects": moved, "bounds": bounds, "component_bounds": component_bounds,
                 "environment": s.environment.map(|e| json!({"name": scene.environments[e.index].name, "rotation_deg": e.rotation_deg})),
             })
         })

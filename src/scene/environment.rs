@@ -28,6 +28,20 @@ impl Environment {
         }
     }
 
+    /// Sets negative texels to 0 and returns how many there were. Lossy EXR compression (the
+    /// DWAB of Blender's bundled HDRIs) rings slightly below zero near bright spots; radiance
+    /// cannot be negative, and scenes refuse it.
+    pub fn clamp_negative(&mut self) -> usize {
+        let mut n = 0;
+        for v in self.pixels.iter_mut().flatten() {
+            if *v < 0.0 {
+                *v = 0.0;
+                n += 1;
+            }
+        }
+        n
+    }
+
     /// A uniform environment (the white furnace).
     pub fn constant(name: impl Into<String>, width: usize, height: usize, rgb: [f32; 3]) -> Self {
         Self::new(name, width, height, vec![rgb; width * height])

@@ -254,15 +254,30 @@ impl Scene {
 
     /// Bounds of all surfel centres in a state's placement (None for an empty scene).
     pub fn bounds_in_state(&self, state: &State) -> Option<([f32; 3], [f32; 3])> {
+        let all =
+            (0..self.components.len()).filter_map(|i| self.component_bounds_in_state(i, state));
+        all.reduce(|(lo, hi), (l, h)| {
+            (
+                std::array::from_fn(|k| lo[k].min(l[k])),
+                std::array::from_fn(|k| hi[k].max(h[k])),
+            )
+        })
+    }
+
+    /// Bounds of one component's surfel centres placed as in `state`.
+    pub fn component_bounds_in_state(
+        &self,
+        component: usize,
+        state: &State,
+    ) -> Option<([f32; 3], [f32; 3])> {
+        let t = state.transforms[component];
         let mut out: Option<([f32; 3], [f32; 3])> = None;
-        for (c, t) in self.components.iter().zip(&state.transforms) {
-            for p in &c.surfels.position {
-                let q = t.transform_point(*p);
-                let (lo, hi) = out.get_or_insert((q, q));
-                for k in 0..3 {
-                    lo[k] = lo[k].min(q[k]);
-                    hi[k] = hi[k].max(q[k]);
-                }
+        for p in &self.components[component].surfels.position {
+            let q = t.transform_point(*p);
+            let (lo, hi) = out.get_or_insert((q, q));
+            for k in 0..3 {
+                lo[k] = lo[k].min(q[k]);
+                hi[k] = hi[k].max(q[k]);
             }
         }
         out
