@@ -6,5 +6,7 @@ pub mod cli;
 pub mod error;
 pub mod io;
 pub mod scene;
+pub mod shade;
+pub mod trace;
 
 pub use error::{Error, Result};

@@ -1,0 +1,312 @@
+//! Tracing speed on a scene that looks like a surfelized room: floor, ceiling and three walls
+//! sampled on a jittered lattice (σ = spacing, as `surfelize` does), plus three spheres that are
+//! separate components placed by rigid transforms (so the two-level path is what is measured).
+//!
+//! - `trace_build`: BVHs for 200k and 1M surfels (all components).
+//! - `trace_rays_200k`: composited camera rays (640×480 pinhole view into the room) and
+//!   visibility rays (from random surface points in random hemisphere directions), all rays in
+//!   parallel with rayon; criterion reports rays/s.
+//!
+//! Run: `cargo bench --bench trace`. Numbers are noisy on a shared machine.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use glam::{Mat3, Quat, Vec3};
+use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::{Camera, Component, Rigid, Scene, Surfels};
+use lightfuse::trace::TraceScene;
+use rayon::prelude::*;
+use std::hint::black_box;
+use std::time::Duration;
+
+/// Room half-width and height, metres.
+const HALF: f32 = 4.0;
+const HEIGHT: f32 = 3.0;
+/// Spheres: centre (placed by the component's transform) and radius.
+const SPHERES: [([f32; 3], f32); 3] = [
+    ([-1.2, 0.7, -1.0], 0.7),
+    ([1.0, 0.5, 0.2], 0.5),
+    ([0.2, 0.9, -2.4], 0.9),
+];
+
+fn push(s: &mut Surfels, rng: &mut SplitMix, mu: Vec3, frame: Mat3, h: f32) {
+    let color = [rng.f32(), rng.f32(), rng.f32()];
+    s.push(
+        mu.to_array(),
+        Quat::from_mat3(&frame).normalize().to_array(),
+        [h, h],
+        rng.range(0.9, 1.0),
+        &[[0.0; 3]],
+        color,
+        rng.f32(),
+        rng.range(0.1, 1.0),
+    );
+}
+
+/// A jittered lattice of pitch h on the rectangle corner + a·e1 + b·e2, a ∈ [0, la], b ∈ [0, lb],
+/// normal e1 × e2.
+#[allow(clippy::too_many_arguments)]
+fn plane(
+    s: &mut Surfels,
+    rng: &mut SplitMix,
+    corner: Vec3,
+    e1: Vec3,
+    e2: Vec3,
+    la: f32,
+    lb: f32,
+    h: f32,
+) {
+    let frame = Mat3::from_cols(e1, e2, e1.cross(e2));
+    let (na, nb) = ((la / h) as usize, (lb / h) as usize);
+    for i in 0..na {
+        for j in 0..nb {
+            let a = (i as f32 + 0.5 + rng.range(-0.25, 0.25)) * h;
+            let b = (j as f32 + 0.5 + rng.range(-0.25, 0.25)) * h;
+            push(s, rng, corner + a * e1 + b * e2, frame, h);
+        }
+    }
+}
+
+/// Fibonacci points on a sphere of radius r at the origin, about r²·4π / h² of them, normals out.
+fn sphere(s: &mut Surfels, rng: &mut SplitMix, r: f32, h: f32) {
+    let n = (4.0 * std::f32::consts::PI * r * r / (h * h)) as usize;
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    for i in 0..n {
+        let y = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+        let ring = (1.0 - y * y).sqrt();
+        let phi = golden * i as f32;
+        let normal = Vec3::new(ring * phi.cos(), y, ring * phi.sin());
+        let tangent = normal.any_orthonormal_vector();
+        let frame = Mat3::from_cols(tangent, normal.cross(tangent), normal);
+        push(s, rng, r * normal, frame, h);
+    }
+}
+
+/// About `n` surfels: the room is the background, each sphere an object placed by its state
+/// transform (translation plus a turn, so the object frame is not the world frame).
+fn room(n: usize) -> Scene {
+    let walls = 2.0 * (2.0 * HALF) * (2.0 * HALF) + 3.0 * (2.0 * HALF) * HEIGHT;
+    let balls: f32 = SPHERES
+        .iter()
+        .map(|(_, r)| 4.0 * std::f32::consts::PI * r * r)
+        .sum();
+    let h = ((walls + balls) / n as f32).sqrt();
+    let mut rng = SplitMix(7);
+    let mut bg = Surfels::with_sh_degree(0);
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    let w = 2.0 * HALF;
+    // Normals point into the room.
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(-HALF, 0.0, HALF),
+        x,
+        -z,
+        w,
+        w,
+        h,
+    ); // floor, +y
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(-HALF, HEIGHT, -HALF),
+        x,
+        z,
+        w,
+        w,
+        h,
+    ); // ceiling, −y
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(-HALF, 0.0, -HALF),
+        x,
+        y,
+        w,
+        HEIGHT,
+        h,
+    ); // back, +z
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(-HALF, 0.0, HALF),
+        -z,
+        y,
+        w,
+        HEIGHT,
+        h,
+    ); // left, +x
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(HALF, 0.0, -HALF),
+        z,
+        y,
+        w,
+        HEIGHT,
+        h,
+    ); // right, −x
+    let mut scene = Scene::from_background(bg);
+    for (k, (centre, r)) in SPHERES.iter().enumerate() {
+        let mut s = Surfels::with_sh_degree(0);
+        sphere(&mut s, &mut rng, *r, h);
+        scene.components.push(Component {
+            name: format!("sphere{k}"),
+            id: k as u32 + 1,
+            surfels: s,
+        });
+        scene.states[0].transforms.push(Rigid {
+            rotation: Quat::from_rotation_y(0.3 + k as f32).to_array(),
+            translation: *centre,
+        });
+    }
+    scene
+}
+
+/// A 640×480 camera near the front wall looking into the room (DESIGN §2 conventions).
+fn camera() -> Camera {
+    let eye = Vec3::new(0.3, 1.6, 3.6);
+    let forward = (Vec3::new(0.0, 0.8, -2.0) - eye).normalize();
+    let right = forward.cross(Vec3::Y).normalize();
+    let up = right.cross(forward);
+    let back = -forward;
+    let (w, h) = (640u32, 480u32);
+    let fl = 0.5 * w as f32 / (0.5 * 70f32.to_radians()).tan();
+    Camera {
+        transform_matrix: [
+            [right.x, up.x, back.x, eye.x],
+            [right.y, up.y, back.y, eye.y],
+            [right.z, up.z, back.z, eye.z],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+        fl_x: fl,
+        fl_y: fl,
+        cx: 0.5 * w as f32,
+        cy: 0.5 * h as f32,
+        w,
+        h,
+    }
+}
+
+/// Visibility rays leaving random surfels (1 mm off the surface) into random directions of the
+/// hemisphere their normal faces.
+fn visibility_rays(scene: &Scene, count: usize) -> Vec<([f32; 3], [f32; 3])> {
+    let mut rng = SplitMix(11);
+    let state = &scene.states[0];
+    let total = scene.surfel_count();
+    (0..count)
+        .map(|_| {
+            let mut i = (rng.next_u64() % total as u64) as usize;
+            let mut c = 0;
+            while i >= scene.components[c].surfels.len() {
+                i -= scene.components[c].surfels.len();
+                c += 1;
+            }
+            let s = &scene.components[c].surfels;
+            let tf = state.transforms[c];
+            let p = Vec3::from_array(tf.transform_point(s.position[i]));
+            let n = Quat::from_array(tf.transform_rotation(s.rotation[i])) * Vec3::Z;
+            let mut d = Vec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            )
+            .normalize();
+            if d.dot(n) < 0.0 {
+                d = -d;
+            }
+            ((p + 1e-3 * n).to_array(), d.to_array())
+        })
+        .collect()
+}
+
+fn build(c: &mut Criterion) {
+    let mut group = c.benchmark_group("trace_build");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(15));
+    for n in [200_000usize, 1_000_000] {
+        let scene = room(n);
+        group.throughput(Throughput::Elements(scene.surfel_count() as u64));
+        group.bench_with_input(BenchmarkId::from_parameter(n), &scene, |b, scene| {
+            b.iter(|| TraceScene::new(scene))
+        });
+    }
+    group.finish();
+}
+
+fn rays(c: &mut Criterion) {
+    let scene = room(200_000);
+    let traced = TraceScene::new(&scene);
+    let placed = traced.place_state(&scene.states[0]);
+    let cam = camera();
+    let pixels = (cam.w * cam.h) as usize;
+    let vis = visibility_rays(&scene, 200_000);
+
+    let mut group = c.benchmark_group("trace_rays_200k");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(10));
+    group.throughput(Throughput::Elements(pixels as u64));
+    group.bench_function("composite_camera", |b| {
+        b.iter(|| {
+            (0..cam.h)
+                .into_par_iter()
+                .map(|y| {
+                    let mut acc = 0.0f32;
+                    for x in 0..cam.w {
+                        let (o, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+                        acc += placed.composite(o, d, 0.0, f32::INFINITY).alpha;
+                    }
+                    acc
+                })
+                .sum::<f32>()
+        })
+    });
+    group.throughput(Throughput::Elements(vis.len() as u64));
+    group.bench_function("visibility", |b| {
+        b.iter(|| {
+            vis.par_chunks(256)
+                .map(|chunk| {
+                    chunk
+                        .iter()
+                        .map(|(o, d)| placed.transmittance(*o, *d, 0.0, f32::INFINITY))
+                        .sum::<f32>()
+                })
+                .sum::<f32>()
+        })
+    });
+    group.finish();
+
+    // What the rays saw, so a reader can tell the scene is a closed, opaque room.
+    let (mut hits, mut alpha) = (0u64, 0.0f64);
+
+    for y in (0..cam.h).step_by(8) {
+        for x in (0..cam.w).step_by(8) {
+            let (o, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+            let r = placed.composite(o, d, 0.0, f32::INFINITY);
+            hits += r.hits as u64;
+            alpha += r.alpha as f64;
+        }
+    }
+    let m = ((cam.w / 8) * (cam.h / 8)) as f64;
+
+    let open = vis
+        .iter()
+        .map(|(o, d)| placed.transmittance(*o, *d, 0.0, f32::INFINITY))
+        .filter(|t| *t > 0.0)
+        .count();
+    black_box(&traced);
+    eprintln!(
+        "scene: {} surfels; camera rays: mean alpha {:.5}, mean hits composited {:.1}; \
+         visibility rays not fully blocked: {open} of {}",
+        scene.surfel_count(),
+        alpha / m,
+        hits as f64 / m,
+        vis.len()
+    );
+}
+
+criterion_group!(benches, build, rays);
+criterion_main!(benches);

@@ -1,0 +1,20 @@
+//! Shading building blocks of the one-bounce path tracer (paper § Differentiable one-bounce
+//! path tracing, eqs. rendering-equation and path-estimator):
+//!
+//! - [`brdf`]: the metallic-roughness BRDF (Lambert + GGX, glTF's reference model) with
+//!   `eval_f` / `eval_f_cos`, `sample` from a cosine / GGX-VNDF mixture and its `pdf`;
+//! - [`envmap`]: lat-long environment lookups mapped exactly as Cycles maps a World
+//!   Environment Texture (after the axis change of DESIGN §2, with the state's rotation about
+//!   +Y), and their importance sampling;
+//! - [`sobol`]: the replayable Owen-scrambled Sobol sampler that path replay needs.
+//!
+//! Each sampler comes with the density it draws from; `tests/shade.rs` checks that the densities
+//! integrate to one, match histograms of the samples, and agree with the samples' weights.
+
+pub mod brdf;
+pub mod envmap;
+pub mod sobol;
+
+pub use brdf::{Material, Sample};
+pub use envmap::{EnvMap, EnvSample};
+pub use sobol::Sampler;

@@ -1,0 +1,197 @@
+//! The top level: components placed by rigid transforms, and the two ray queries.
+
+use super::batch::{before, Hit, HitBatch};
+use super::record::SurfaceRecord;
+use super::scene::TraceScene;
+use super::T_MIN;
+use crate::scene::Rigid;
+use glam::{Mat3, Vec3};
+use obvhs::ray::{Ray, RayHit};
+
+/// One component placed in the world.
+#[derive(Clone, Copy, Debug)]
+struct Instance {
+    /// World from component frame: x_w = R x + t.
+    rotation: Mat3,
+    translation: Vec3,
+    /// World bounds of the component's supports; `None` for an empty component.
+    bounds: Option<(Vec3, Vec3)>,
+}
+
+impl Instance {
+    /// The ray in the component's frame: o' = Rᵀ(o − t), d' = Rᵀ d (same t along both).
+    #[inline(always)]
+    fn ray_to_local(&self, o: Vec3, d: Vec3) -> (Vec3, Vec3) {
+        let rt = self.rotation.transpose();
+        (rt * (o - self.translation), rt * d)
+    }
+}
+
+/// Whether the ray meets the box for some t in [t_lo, t_hi]. A NaN slab (origin on a face,
+/// direction parallel to it) is ignored by `min`/`max`, which only makes the test conservative.
+#[inline(always)]
+fn ray_box(o: Vec3, inv_d: Vec3, (lo, hi): (Vec3, Vec3), t_lo: f32, t_hi: f32) -> bool {
+    let a = (lo - o) * inv_d;
+    let b = (hi - o) * inv_d;
+    let near = a.min(b).max_element().max(t_lo);
+    let far = a.max(b).min_element().min(t_hi);
+    near <= far
+}
+
+fn obvhs_ray(o: Vec3, d: Vec3, t_lo: f32, t_hi: f32) -> Ray {
+    Ray::new(o.to_array().into(), d.to_array().into(), t_lo, t_hi)
+}
+
+/// A [`TraceScene`] in one placement (a state or a layout).
+pub struct Placed<'a> {
+    scene: &'a TraceScene,
+    instances: Vec<Instance>,
+}
+
+impl<'a> Placed<'a> {
+    pub(crate) fn new(scene: &'a TraceScene, transforms: &[Rigid]) -> Self {
+        let instances = scene
+            .blas
+            .iter()
+            .zip(transforms)
+            .map(|(blas, tf)| {
+                let rotation = Mat3::from_quat(tf.quat().normalize());
+                let translation = Vec3::from_array(tf.translation);
+                let bounds = blas.bvh.as_ref().map(|_| {
+                    let (lo, hi) = (Vec3::from_array(blas.lo), Vec3::from_array(blas.hi));
+                    let mut wlo = Vec3::INFINITY;
+                    let mut whi = Vec3::NEG_INFINITY;
+                    for c in 0..8 {
+                        let corner = Vec3::select(
+                            glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0),
+                            hi,
+                            lo,
+                        );
+                        let w = rotation * corner + translation;
+                        wlo = wlo.min(w);
+                        whi = whi.max(w);
+                    }
+                    (wlo, whi)
+                });
+                Instance {
+                    rotation,
+                    translation,
+                    bounds,
+                }
+            })
+            .collect();
+        Placed { scene, instances }
+    }
+
+    /// Composites the hits of the ray `origin + t dir`, `t_min < t < t_max`, front to back
+    /// (eq. surface-record) until the transmittance falls below [`T_MIN`]. `dir` need not be
+    /// unit length; `t` and thus `depth` are in its units.
+    pub fn composite(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+    ) -> SurfaceRecord {
+        let o = Vec3::from_array(origin);
+        let d = Vec3::from_array(dir);
+        let inv_d = d.recip();
+        let mut record = SurfaceRecord::default();
+        // Hits must come strictly after `after`; u64::MAX excludes every key at t_min itself.
+        let mut after = (t_min, u64::MAX);
+        let mut carry = 1.0f32;
+        loop {
+            let mut batch = HitBatch::new(carry, t_max);
+            for (c, (inst, blas)) in self.instances.iter().zip(&self.scene.blas).enumerate() {
+                let (Some(bounds), Some(bvh)) = (inst.bounds, blas.bvh.as_ref()) else {
+                    continue;
+                };
+                if !ray_box(o, inv_d, bounds, after.0, batch.bound()) {
+                    continue;
+                }
+                let (lo, ld) = inst.ray_to_local(o, d);
+                let key_base = (c as u64) << 32;
+                let mut unused = RayHit::none();
+                // obvhs shrinks the ray's tmax to whatever the closure returns below it: return
+                // the batch's bound whenever it tightens, +∞ otherwise.
+                bvh.ray_traverse(
+                    obvhs_ray(lo, ld, after.0, batch.bound()),
+                    &mut unused,
+                    |_, slot| {
+                        let Some((t, alpha)) = blas.hit[slot].hit(lo, ld, after.0, batch.bound())
+                        else {
+                            return f32::INFINITY;
+                        };
+                        let key = key_base | blas.index[slot] as u64;
+                        if !(before(after, (t, key)) && batch.accepts(t, key)) {
+                            return f32::INFINITY;
+                        }
+                        batch.insert(Hit {
+                            t,
+                            alpha,
+                            key,
+                            slot: slot as u32,
+                        });
+                        batch.bound()
+                    },
+                );
+            }
+            for (w, h) in batch.weighted() {
+                let c = (h.key >> 32) as usize;
+                let blas = &self.scene.blas[c];
+                let slot = h.slot as usize;
+                let mut n = self.instances[c].rotation * Vec3::from_array(blas.hit[slot].n);
+                if n.dot(d) > 0.0 {
+                    n = -n;
+                }
+                let x = o + h.t * d;
+                record.add(w, h.t, x.to_array(), n.to_array(), &blas.material[slot]);
+            }
+            if batch.finishes() {
+                return record;
+            }
+            (after, carry) = batch.resume();
+        }
+    }
+
+    /// Transmittance Π (1 − α_eff) along `origin + t dir`, `t_min < t < t_max`, multiplied in
+    /// whatever order the BVH yields hits. Returns 0 as soon as it falls below [`T_MIN`].
+    pub fn transmittance(&self, origin: [f32; 3], dir: [f32; 3], t_min: f32, t_max: f32) -> f32 {
+        let o = Vec3::from_array(origin);
+        let d = Vec3::from_array(dir);
+        let inv_d = d.recip();
+        let mut tr = 1.0f32;
+        for (inst, blas) in self.instances.iter().zip(&self.scene.blas) {
+            let (Some(bounds), Some(bvh)) = (inst.bounds, blas.bvh.as_ref()) else {
+                continue;
+            };
+            if !ray_box(o, inv_d, bounds, t_min, t_max) {
+                continue;
+            }
+            let (lo, ld) = inst.ray_to_local(o, d);
+            let ray = obvhs_ray(lo, ld, t_min, t_max);
+            let mut state = bvh.new_ray_traversal(ray);
+            let mut unused = RayHit::none();
+            let mut alpha = 0.0;
+            // The yielding traversal stops at every hit (the closure returns its t below the
+            // ray's tmax), so the loop can end the moment the ray is blocked; tmax is put back
+            // each time because a visibility ray needs every hit, not the closest.
+            while bvh.ray_traverse_dynamic(&mut state, &mut unused, |_, slot| {
+                match blas.hit[slot].hit(lo, ld, t_min, t_max) {
+                    Some((t, a)) if t > t_min && t < t_max => {
+                        alpha = a;
+                        t
+                    }
+                    _ => f32::INFINITY,
+                }
+            }) {
+                tr *= 1.0 - alpha;
+                if tr < T_MIN {
+                    return 0.0;
+                }
+                state.ray.tmax = t_max;
+            }
+        }
+        tr
+    }
+}

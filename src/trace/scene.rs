@@ -1,0 +1,137 @@
+//! The bottom level: one BVH per component, built once in the component's own frame.
+
+use super::placed::Placed;
+use super::record::Material;
+use super::surfel::{surfel_bounds, HitSurfel};
+use crate::scene::{Rigid, Scene, State, Surfels};
+use obvhs::aabb::Aabb;
+use obvhs::cwbvh::{builder::build_cwbvh, CwBvh};
+use obvhs::BvhBuildParams;
+use rayon::prelude::*;
+use std::time::Duration;
+
+/// One component ready for tracing: its BVH and, in the BVH's leaf order, what the hit test
+/// and the compositing read.
+pub(crate) struct Blas {
+    /// `None` for a component without surfels.
+    pub bvh: Option<CwBvh>,
+    pub hit: Vec<HitSurfel>,
+    pub material: Vec<Material>,
+    /// The surfel's index in the component, for the tie-break and for callers.
+    pub index: Vec<u32>,
+    /// Bounds of all supports, component frame (meaningless when empty).
+    pub lo: [f32; 3],
+    pub hi: [f32; 3],
+}
+
+impl Blas {
+    fn build(s: &Surfels) -> Blas {
+        let n = s.len();
+        assert!(
+            n < u32::MAX as usize,
+            "a component holds at most 2³² − 1 surfels"
+        );
+        let bounds: Vec<Aabb> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let (lo, hi) = surfel_bounds(s.position[i], s.rotation[i], s.scale[i]);
+                Aabb::new(lo.into(), hi.into())
+            })
+            .collect();
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for b in &bounds {
+            for k in 0..3 {
+                lo[k] = lo[k].min(b.min[k]);
+                hi[k] = hi[k].max(b.max[k]);
+            }
+        }
+        if n == 0 {
+            return Blas {
+                bvh: None,
+                hit: Vec::new(),
+                material: Vec::new(),
+                index: Vec::new(),
+                lo: [0.0; 3],
+                hi: [0.0; 3],
+            };
+        }
+        // Medium quality: build time stays within a few times a fast build, and traversal is
+        // what a path tracer pays for, millions of times per build.
+        let bvh = build_cwbvh(
+            &bounds,
+            BvhBuildParams::medium_build(),
+            &mut Duration::default(),
+        );
+        let index = bvh.primitive_indices.clone();
+        let hit = index
+            .par_iter()
+            .map(|&i| {
+                let i = i as usize;
+                HitSurfel::new(s.position[i], s.rotation[i], s.scale[i], s.opacity[i])
+            })
+            .collect();
+        let material = index
+            .iter()
+            .map(|&i| {
+                let i = i as usize;
+                Material {
+                    base_color: s.base_color[i],
+                    metallic: s.metallic[i],
+                    roughness: s.roughness[i],
+                }
+            })
+            .collect();
+        Blas {
+            bvh: Some(bvh),
+            hit,
+            material,
+            index,
+            lo,
+            hi,
+        }
+    }
+}
+
+/// Surfel components ready to be traced in any placement: build once per scene geometry, then
+/// [`TraceScene::place`] for each state or layout.
+pub struct TraceScene {
+    pub(crate) blas: Vec<Blas>,
+}
+
+impl TraceScene {
+    /// Builds a BVH for every component of the scene.
+    pub fn new(scene: &Scene) -> TraceScene {
+        let parts: Vec<&Surfels> = scene.components.iter().map(|c| &c.surfels).collect();
+        TraceScene::from_components(&parts)
+    }
+
+    /// Builds a BVH for each group of surfels (component order = instance order in `place`).
+    pub fn from_components(components: &[&Surfels]) -> TraceScene {
+        TraceScene {
+            blas: components.iter().map(|s| Blas::build(s)).collect(),
+        }
+    }
+
+    pub fn component_count(&self) -> usize {
+        self.blas.len()
+    }
+
+    /// Places the components with one rigid transform each (component frame → world): the
+    /// top level only, no BVH is rebuilt.
+    ///
+    /// Panics unless there is exactly one transform per component (a validated [`State`] has).
+    pub fn place(&self, transforms: &[Rigid]) -> Placed<'_> {
+        assert_eq!(
+            transforms.len(),
+            self.blas.len(),
+            "TraceScene::place: expected one transform per component"
+        );
+        Placed::new(self, transforms)
+    }
+
+    /// Places the components as a state does.
+    pub fn place_state(&self, state: &State) -> Placed<'_> {
+        self.place(&state.transforms)
+    }
+}
