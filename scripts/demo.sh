@@ -22,4 +22,8 @@ echo "== surfelizing (oracle scene: every state with its ground-truth poses and 
 echo "== converting"
 "$lf" convert "$out/scene.glb" "$out/scene.usda"
 "$lf" convert "$out/scene.glb" "$out/scene.ply"
+echo "== rendering state0's cameras with LightFuse's one-bounce path tracer"
+"$lf" render "$out/scene.glb" --state state0 --cameras "$out/dataset" --spp 32 --out "$out/render/state0"
+echo "== against the dataset's Cycles images (full bounces, full-resolution environment)"
+.venv/bin/python blender/compare_renders.py --ref "$out/dataset/state0" --test "$out/render/state0" || true
 echo "done: $out/scene.glb (open in any KHR_gaussian_splatting viewer), $out/scene.usda, $out/scene.ply"

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import run_script
+from bltest import run_script
 
 import lfcommon as lf
 import lfio

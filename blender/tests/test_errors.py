@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from conftest import run_script
+from bltest import run_script
 
 EYE = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
 

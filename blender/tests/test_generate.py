@@ -10,7 +10,7 @@ import jsonschema
 import numpy as np
 import pytest
 
-from conftest import run_script
+from bltest import run_script
 
 import lfcommon as lf
 import lfio

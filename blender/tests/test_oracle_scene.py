@@ -7,7 +7,7 @@ import subprocess
 
 import numpy as np
 
-from conftest import REPO, run_script
+from bltest import REPO, run_script
 
 LIGHTFUSE = os.environ.get("LIGHTFUSE_BIN", os.path.join(REPO, "target", "release", "lightfuse"))
 SPACING = 0.02

@@ -10,7 +10,7 @@ import struct
 import numpy as np
 import pytest
 
-from conftest import run_script
+from bltest import run_script
 from lfgltf_writer import random_component, write_glb
 
 import lfcommon as lf

@@ -7,6 +7,14 @@ use exr::prelude::*;
 use std::io::Cursor;
 use std::path::Path;
 
+/// Lossless ZIP in scanline blocks: the layout every EXR reader (OpenEXR, Blender, numpy-based
+/// readers in `blender/`) handles; the crate's FAST_LOSSLESS preset writes tiles.
+const SCANLINE_ZIP: Encoding = Encoding {
+    compression: Compression::ZIP16,
+    blocks: Blocks::ScanLines,
+    line_order: LineOrder::Increasing,
+};
+
 /// Largest environment accepted: 16384 x 8192 texels (1.5 GiB as f32 RGB).
 pub const MAX_ENVIRONMENT_TEXELS: usize = 16384 * 8192;
 
@@ -99,10 +107,7 @@ pub fn environment_bytes(env: &Environment) -> Vec<u8> {
     let layer = Layer::new(
         (env.width, env.height),
         LayerAttributes::named(env.name.as_str()),
-        Encoding {
-            compression: Compression::ZIP16,
-            ..Encoding::FAST_LOSSLESS
-        },
+        SCANLINE_ZIP,
         channels,
     );
     let mut out = Cursor::new(Vec::new());
@@ -156,10 +161,7 @@ pub fn write_channels(image: &Channels, path: &Path) -> Result<()> {
     let layer = Layer::new(
         size,
         LayerAttributes::default(),
-        Encoding {
-            compression: Compression::ZIP16,
-            ..Encoding::FAST_LOSSLESS
-        },
+        SCANLINE_ZIP,
         AnyChannels::sort(list),
     );
     let mut bytes = Cursor::new(Vec::new());

@@ -13,6 +13,7 @@
 
 pub mod brdf;
 pub mod envmap;
+pub mod estimator;
 pub mod sobol;
 
 pub use brdf::{Material, Sample};

@@ -1,0 +1,434 @@
+//! `lightfuse render`: path-traced images of a scene in a state or layout, under a state's or a
+//! given environment, for a set of cameras (the one-bounce estimator of
+//! [`crate::shade::estimator`]).
+//!
+//! Output, per camera, named after the frame's file stem (`state0/rgb/000.exr` → `000`; when two
+//! selected frames share a stem, the frame's path with `/` → `_`):
+//! - `<name>.exr`: float channels `R, G, B` (radiance, scene-linear Rec.709, the environment
+//!   included behind partial coverage), `A` (mean coverage), `Z` (planar depth, DESIGN §2; 0 = no
+//!   hit), `N.X, N.Y, N.Z` (unit world normal facing the camera), `albedo.R/G/B` (base colour);
+//!   the AOVs come from the record at the pixel centre;
+//! - `<name>.png`: an 8-bit sRGB preview of R, G, B (clamped to [0, 1], sRGB OETF).
+//!
+//! Frame k of the selection uses the Sobol streams `Sampler::new(y·w + x, seed + k)`.
+
+use super::{Cli, RenderArgs};
+use crate::error::{Error, Result};
+use crate::io::dataset::{Dataset, Frame, DATASET_FORMAT};
+use crate::io::exr::Channels;
+use crate::scene::{Camera, Environment, Scene, State};
+use crate::shade::estimator::{Estimator, Pixel, PixelFilter};
+use crate::shade::EnvMap;
+use crate::trace::TraceScene;
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Image tiles are this many pixels square; a tile is one rayon task.
+const TILE: u32 = 16;
+
+/// A camera to render and the name its files take.
+struct View {
+    name: String,
+    camera: Camera,
+}
+
+pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
+    if a.spp == 0 || a.spp > crate::shade::sobol::MAX_SAMPLES {
+        return Err(Error::Usage(format!(
+            "--spp: expected 1 ..= {}, found {}",
+            crate::shade::sobol::MAX_SAMPLES,
+            a.spp
+        )));
+    }
+    if !a.filter_width.is_finite() || a.filter_width < 0.0 {
+        return Err(Error::Usage(format!(
+            "--filter-width: expected a width >= 0 pixels, found {}",
+            a.filter_width
+        )));
+    }
+    let scene = crate::io::read_scene(&a.scene)?;
+    let state = select_state(&scene, a)?;
+    let (environment, rotation, env_source) = select_environment(&scene, &state, a)?;
+    let views = select_views(a, &state.name)?;
+
+    let started = Instant::now();
+    let trace = TraceScene::new(&scene);
+    let placed = trace.place_state(&state);
+    let map = EnvMap::new(&environment, rotation);
+    let eps = crate::shade::estimator::self_hit_epsilon(&scene, &state);
+    let estimator = Estimator::new(&placed, &map, eps);
+    let filter = PixelFilter::new(a.filter_width);
+
+    let total: u64 = views
+        .iter()
+        .map(|v| v.camera.w as u64 * v.camera.h as u64)
+        .sum();
+    let bar = if cli.quiet || cli.json {
+        indicatif::ProgressBar::hidden()
+    } else {
+        let bar = indicatif::ProgressBar::new(total);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg} [{bar:40}] {pos}/{len} px {elapsed_precise} eta {eta}",
+            )
+            .expect("a valid progress template")
+            .progress_chars("=> "),
+        );
+        bar
+    };
+    let mut files = Vec::new();
+    let mut rays = 0u64;
+    for (k, view) in views.iter().enumerate() {
+        bar.set_message(view.name.clone());
+        let seed = a.seed.wrapping_add(k as u32);
+        let (image, view_rays) = render_view(&estimator, &filter, &view.camera, a.spp, seed, &bar);
+        rays += view_rays;
+        let exr = a.out.join(format!("{}.exr", view.name));
+        let png = a.out.join(format!("{}.png", view.name));
+        crate::io::exr::write_channels(&image, &exr)?;
+        write_png(&image, &png)?;
+        files.push(exr);
+        files.push(png);
+    }
+    bar.finish_and_clear();
+    let seconds = started.elapsed().as_secs_f64();
+    if cli.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "files": files, "frames": views.len(), "seconds": seconds, "rays": rays,
+                "spp": a.spp, "seed": a.seed, "state": state.name, "epsilon": eps,
+                "environment": env_source, "environment_rotation_deg": rotation,
+            })
+        );
+    } else if !cli.quiet {
+        eprintln!(
+            "rendered {} views ({} spp) into {} in {seconds:.1} s ({:.2} Mrays/s)",
+            views.len(),
+            a.spp,
+            a.out.display(),
+            rays as f64 / seconds.max(1e-9) / 1e6
+        );
+    }
+    Ok(())
+}
+
+/// The placement: `--layout` (objects it names moved, the others at the reference placement),
+/// else `--state` (default: the reference state). A layout keeps `--state`'s environment.
+fn select_state(scene: &Scene, a: &RenderArgs) -> Result<State> {
+    let base = match &a.state {
+        Some(name) => {
+            let i = scene.state_index(name).ok_or_else(|| {
+                let names: Vec<_> = scene.states.iter().map(|s| s.name.as_str()).collect();
+                Error::invalid(
+                    &a.scene,
+                    "states",
+                    format!("--state {name:?}: expected one of {names:?}"),
+                )
+            })?;
+            scene.states[i].clone()
+        }
+        None => scene.states[scene.reference_state].clone(),
+    };
+    match &a.layout {
+        None => Ok(base),
+        Some(path) => {
+            let layout = crate::io::layout::read_layout(path)?;
+            let name = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "layout".into());
+            let mut state = scene.state_from_layout(&name, &layout, path)?;
+            state.environment = base.environment;
+            Ok(state)
+        }
+    }
+}
+
+/// Refuses anything but an equirectangular (2:1) map.
+fn check_latlong(env: &Environment, file: &Path, field: &str) -> Result<()> {
+    if env.width != 2 * env.height {
+        return Err(Error::invalid(
+            file,
+            field,
+            format!(
+                "expected an equirectangular environment with width = 2 x height, found {}x{}",
+                env.width, env.height
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// `--env` (with `--env-rotation`, default 0), else the state's environment and rotation
+/// (`--env-rotation` then overrides its rotation).
+fn select_environment<'s>(
+    scene: &'s Scene,
+    state: &State,
+    a: &RenderArgs,
+) -> Result<(std::borrow::Cow<'s, Environment>, f32, String)> {
+    if let Some(path) = &a.env {
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let mut env = crate::io::exr::read_environment(path, &name)?;
+        check_latlong(&env, path, "EXR data window")?;
+        env.clamp_negative();
+        return Ok((
+            std::borrow::Cow::Owned(env),
+            a.env_rotation.unwrap_or(0.0),
+            path.display().to_string(),
+        ));
+    }
+    let r = state.environment.ok_or_else(|| {
+        Error::Usage(format!(
+            "{}: state {:?} has no environment; give one with --env FILE.exr",
+            a.scene.display(),
+            state.name
+        ))
+    })?;
+    let env = &scene.environments[r.index];
+    check_latlong(env, &a.scene, &format!("environments[{}]", r.index))?;
+    Ok((
+        std::borrow::Cow::Borrowed(env),
+        a.env_rotation.unwrap_or(r.rotation_deg),
+        format!("{}#{}", a.scene.display(), env.name),
+    ))
+}
+
+/// `{"frames": [...]}` of a cameras file.
+#[derive(serde::Deserialize)]
+struct CameraFile {
+    frames: Vec<Frame>,
+}
+
+/// The cameras: a dataset's frames (`--frames STATE` or `all`; default: `--state` if the dataset
+/// has it, else its first state), or every frame of a cameras.json.
+fn select_views(a: &RenderArgs, state_name: &str) -> Result<Vec<View>> {
+    let path = &a.cameras;
+    let is_dataset = path.is_dir() || {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let v: serde_json::Value = serde_json::from_slice(&bytes)
+            .map_err(|e| Error::invalid(path, "JSON", format!("expected valid JSON: {e}")))?;
+        v.get("format").and_then(|f| f.as_str()) == Some(DATASET_FORMAT)
+    };
+    // (frame, state name or "", index) of each selected frame.
+    let mut frames: Vec<(Frame, String, PathBuf)> = Vec::new();
+    if is_dataset {
+        let d = Dataset::read(path)?;
+        let state_frames = |k: usize| -> Vec<Frame> {
+            let s = &d.states[k];
+            if s.frames.is_empty() {
+                s.relight.iter().flat_map(|r| r.frames.clone()).collect()
+            } else {
+                s.frames.clone()
+            }
+        };
+        let chosen: Vec<usize> = match a.frames.as_deref() {
+            Some("all") => (0..d.states.len()).collect(),
+            Some(name) => vec![d
+                .states
+                .iter()
+                .position(|s| s.name == name)
+                .ok_or_else(|| {
+                    let names: Vec<_> = d.states.iter().map(|s| s.name.as_str()).collect();
+                    Error::invalid(
+                        &d.file,
+                        "states",
+                        format!("--frames {name:?}: expected \"all\" or one of {names:?}"),
+                    )
+                })?],
+            None => vec![d
+                .states
+                .iter()
+                .position(|s| s.name == state_name)
+                .unwrap_or(0)],
+        };
+        for k in chosen {
+            for f in state_frames(k) {
+                frames.push((f, d.states[k].name.clone(), d.file.clone()));
+            }
+        }
+        // Relight frames are not validated by Dataset::read.
+        for (i, (f, s, file)) in frames.iter().enumerate() {
+            f.camera
+                .validate(file, &format!("states.{s}.frames[{i}]"))?;
+        }
+    } else {
+        if a.frames.is_some() {
+            return Err(Error::Usage(
+                "--frames selects a dataset state's frames; --cameras is not a dataset".into(),
+            ));
+        }
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let c: CameraFile = serde_json::from_slice(&bytes).map_err(|e| {
+            Error::invalid(
+                path,
+                "frames",
+                format!("expected {{\"frames\": [...]}} with dataset frame fields: {e}"),
+            )
+        })?;
+        for (i, f) in c.frames.iter().enumerate() {
+            f.camera.validate(path, &format!("frames[{i}]"))?;
+        }
+        frames = c
+            .frames
+            .into_iter()
+            .map(|f| (f, String::new(), path.clone()))
+            .collect();
+    }
+    if frames.is_empty() {
+        return Err(Error::invalid(
+            path,
+            "frames",
+            "expected at least one camera frame",
+        ));
+    }
+    let stem = |f: &Frame| {
+        Path::new(&f.file_path)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let stems: Vec<String> = frames.iter().map(|(f, _, _)| stem(f)).collect();
+    let unique = {
+        let mut s = stems.clone();
+        s.sort();
+        s.dedup();
+        s.len() == stems.len() && stems.iter().all(|s| !s.is_empty())
+    };
+    Ok(frames
+        .into_iter()
+        .zip(stems)
+        .enumerate()
+        .map(|(i, ((f, _, _), stem))| {
+            let name = if unique {
+                stem
+            } else {
+                let p = Path::new(&f.file_path).with_extension("");
+                let flat = p.to_string_lossy().replace(['/', '\\'], "_");
+                if flat.is_empty() {
+                    format!("{i:03}")
+                } else {
+                    flat
+                }
+            };
+            View {
+                name,
+                camera: f.camera,
+            }
+        })
+        .collect())
+}
+
+/// Renders one camera: rayon over 16x16 tiles, each rendered into its own buffer.
+fn render_view(
+    estimator: &Estimator,
+    filter: &PixelFilter,
+    camera: &Camera,
+    spp: u32,
+    seed: u32,
+    bar: &indicatif::ProgressBar,
+) -> (Channels, u64) {
+    let (w, h) = (camera.w, camera.h);
+    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+        .collect();
+    let rendered: Vec<((u32, u32), [Pixel; (TILE * TILE) as usize])> = tiles
+        .par_iter()
+        .map(|&(x0, y0)| {
+            let mut buf = [Pixel::default(); (TILE * TILE) as usize];
+            let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    buf[((y - y0) * TILE + (x - x0)) as usize] =
+                        estimator.pixel(camera, filter, (x, y), spp, seed);
+                }
+            }
+            bar.inc(((x1 - x0) * (y1 - y0)) as u64);
+            ((x0, y0), buf)
+        })
+        .collect();
+    let n = (w * h) as usize;
+    const NAMES: [&str; 11] = [
+        "R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z", "albedo.R", "albedo.G", "albedo.B",
+    ];
+    let mut planes = vec![vec![0.0f32; n]; NAMES.len()];
+    let mut rays = 0u64;
+    for ((x0, y0), buf) in &rendered {
+        for y in *y0..(y0 + TILE).min(h) {
+            for x in *x0..(x0 + TILE).min(w) {
+                let p = &buf[((y - y0) * TILE + (x - x0)) as usize];
+                let i = (y * w + x) as usize;
+                let values = [
+                    p.rgb[0],
+                    p.rgb[1],
+                    p.rgb[2],
+                    p.alpha,
+                    p.depth,
+                    p.normal[0],
+                    p.normal[1],
+                    p.normal[2],
+                    p.albedo[0],
+                    p.albedo[1],
+                    p.albedo[2],
+                ];
+                for (plane, v) in planes.iter_mut().zip(values) {
+                    plane[i] = v;
+                }
+                rays += p.rays as u64;
+            }
+        }
+    }
+    let channels = NAMES
+        .iter()
+        .zip(planes)
+        .map(|(name, v)| (name.to_string(), v))
+        .collect();
+    (
+        Channels {
+            width: w as usize,
+            height: h as usize,
+            channels,
+        },
+        rays,
+    )
+}
+
+/// The sRGB OETF (IEC 61966-2-1) of a linear value clamped to [0, 1], as an 8-bit code.
+fn srgb8(v: f32) -> u8 {
+    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+    let s = if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5) as u8
+}
+
+fn write_png(image: &Channels, path: &Path) -> Result<()> {
+    use image::ImageEncoder;
+    let (r, g, b) = (
+        image.get("R").expect("an R channel"),
+        image.get("G").expect("a G channel"),
+        image.get("B").expect("a B channel"),
+    );
+    let mut rgb = Vec::with_capacity(image.width * image.height * 3);
+    for i in 0..image.width * image.height {
+        rgb.extend_from_slice(&[srgb8(r[i]), srgb8(g[i]), srgb8(b[i])]);
+    }
+    let mut bytes = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut bytes)
+        .write_image(
+            &rgb,
+            image.width as u32,
+            image.height as u32,
+            image::ExtendedColorType::Rgb8,
+        )
+        .map_err(|e| Error::io(path, std::io::Error::other(e)))?;
+    let mut files = crate::io::AtomicFiles::new();
+    files.write(path, &bytes)?;
+    files.commit()
+}

@@ -1,0 +1,424 @@
+//! The one-bounce radiance estimator (paper § Differentiable one-bounce path tracing,
+//! eqs. rendering-equation and path-estimator) and the forward renderer built on it.
+//!
+//! **One path sample** of a camera ray: composite the primary surface record (eq.
+//! surface-record). No hit: the environment along the ray, `env.eval(dir)` exactly, so the
+//! background is the one Cycles' world shading gives. Otherwise the record (mean position,
+//! renormalised normal facing the ray, weighted-mean material) is shaded with
+//! (a) one environment next-event sample, visibility by [`Placed::transmittance`];
+//! (b) one BSDF continuation (cosine / GGX-VNDF mixture, [`brdf::sample`]) traced with
+//! [`Placed::composite`]: where it escapes it sees the environment, where it meets a secondary
+//! record that record is shaded by two environment samples (next-event only, with visibility,
+//! no further bounce). (a) and the escaping part of (b) estimate the same integral and are
+//! combined by the power heuristic (β = 2). This is the paper's "one primary environment
+//! next-event sample, one BSDF continuation, at most one secondary hit, and two environment
+//! samples at that hit" (§ Experimental setup).
+//!
+//! **Partial coverage.** Surfels are semi-transparent, so a composited record has an alpha
+//! `α ∈ [0, 1)`. A camera ray returns `L = α · L_surface + (1 − α) · E(dir)`: the surface seen
+//! through a fraction α of the pixel ray, the environment through the rest. The continuation
+//! uses the same rule for its secondary record: it adds `α₂ · L_secondary + (1 − α₂) · w · E(ωᵢ)`,
+//! where `(1 − α₂)` is the continuation's transmittance, the quantity the next-event sample's
+//! visibility also estimates; so the two MIS strategies estimate the same visibility-weighted
+//! integral and the combination stays unbiased. Every term is linear in the environment texels
+//! and, for a diffuse scene, in the base colours (DESIGN §5).
+//!
+//! **Self-intersection.** Surfels are overlapping discs tangent to the surface, and the
+//! composited position is a mean of hits on several of them, so a ray leaving it meets the
+//! neighbours of the very surfels it was composited from: on a surface of radius R, the plane of
+//! a neighbour at distance b lies b²/(2R) above the point, and a ray leaving along the normal
+//! crosses it b away from that neighbour's centre, where its opacity is still α·exp(−½ b²/σ²).
+//! Secondary rays therefore start at `x + ε n` with `t_min = ε`, and ε is tied to the surfels'
+//! size, not only to the scene's: [`self_hit_epsilon`] = [`EPS_SCALE`] × the median surfel scale
+//! σ (at least [`EPS_REL`] × the scene's diagonal, for f32 precision far from the origin). With
+//! ε = 0.3 σ every neighbour within the 3σ support is cleared on surfaces of radius ≥ 15 σ
+//! ((3σ)²/(2·15σ) = 0.3σ); a surfelized scene at 1 cm spacing gets ε = 3 mm, below the scale of
+//! contact-shadow detail that such a scene resolves anyway.
+//!
+//! **Replay.** Every random number comes from the Sobol [`Sampler`] of the pixel, indexed by the
+//! path's sample index and a fixed dimension ([`dim`]), so a path is a pure function of
+//! (pixel, sample index, seed) and can be replayed exactly.
+
+use super::brdf::{self, Material};
+use super::envmap::EnvMap;
+use super::sobol::Sampler;
+use crate::scene::{Camera, Scene, State};
+use crate::trace::{Placed, SurfaceRecord};
+use glam::Vec3;
+
+/// Sobol dimensions of one path sample. Fixed, so a path replays from (pixel, sample, seed).
+///
+/// | dims | use |
+/// |---|---|
+/// | 0–1 | pixel position (filter importance sample) |
+/// | 2–3 | primary environment next-event direction |
+/// | 4 | primary BSDF lobe choice |
+/// | 5–6 | primary BSDF direction |
+/// | 7–8 | first environment sample at the secondary hit |
+/// | 9–10 | second environment sample at the secondary hit |
+pub mod dim {
+    pub const PIXEL: u32 = 0;
+    pub const ENV_NEE: u32 = 2;
+    pub const LOBE: u32 = 4;
+    pub const BSDF: u32 = 5;
+    pub const SECONDARY_ENV: [u32; 2] = [7, 9];
+    /// Dimensions used per path sample.
+    pub const COUNT: u32 = 11;
+}
+
+/// Secondary-ray offset per unit of median surfel scale (see the module docs).
+pub const EPS_SCALE: f32 = 0.3;
+/// Least secondary-ray offset relative to the scene's bounding-box diagonal: f32 positions
+/// ~1e-7 relative, so this keeps the offset well above rounding.
+pub const EPS_REL: f32 = 1e-5;
+
+/// The secondary-ray offset ε for a scene in a placement (see the module docs).
+pub fn self_hit_epsilon(scene: &Scene, state: &State) -> f32 {
+    let mut scales: Vec<f32> = scene
+        .components
+        .iter()
+        .flat_map(|c| c.surfels.scale.iter().map(|s| s[0].max(s[1])))
+        .filter(|s| s.is_finite())
+        .collect();
+    let median = if scales.is_empty() {
+        0.0
+    } else {
+        let mid = scales.len() / 2;
+        *scales.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    let diag = scene
+        .bounds_in_state(state)
+        .map(|(lo, hi)| (Vec3::from_array(hi) - Vec3::from_array(lo)).length())
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .unwrap_or(1.0);
+    (EPS_SCALE * median).max(EPS_REL * diag)
+}
+
+/// Cycles' default pixel filter width (Blackman–Harris), in pixels.
+pub const DEFAULT_FILTER_WIDTH: f32 = 1.5;
+
+/// What one camera-ray path sample returns.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PathSample {
+    /// Radiance, scene-linear Rec.709.
+    pub radiance: [f32; 3],
+    /// The primary record (eq. surface-record).
+    pub record: SurfaceRecord,
+    /// Rays traced (composite and visibility queries).
+    pub rays: u32,
+}
+
+/// The one-bounce estimator over one placed scene and one environment.
+#[derive(Clone, Copy)]
+pub struct Estimator<'a> {
+    pub scene: &'a Placed<'a>,
+    pub env: &'a EnvMap,
+    /// Offset of secondary-ray origins along the normal, and their `t_min` (world units).
+    pub eps: f32,
+}
+
+/// Power heuristic, β = 2 (Veach 1995), for a sample of density `a` against strategy `b`.
+#[inline]
+fn power_heuristic(a: f32, b: f32) -> f32 {
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 > 0.0 && (a2 + b2).is_finite() {
+        a2 / (a2 + b2)
+    } else if a.is_infinite() {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+#[inline]
+fn mul3(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] * b[0], a[1] * b[1], a[2] * b[2]]
+}
+
+#[inline]
+fn add_scaled(acc: &mut [f32; 3], v: [f32; 3], s: f32) {
+    for c in 0..3 {
+        acc[c] += v[c] * s;
+    }
+}
+
+/// A record's shading point: mean position, unit normal facing the ray, mean material.
+struct Shading {
+    x: Vec3,
+    n: Vec3,
+    material: Material,
+}
+
+impl Shading {
+    /// `None` when the normals cancel out (nothing to shade).
+    fn of(record: &SurfaceRecord) -> Option<Shading> {
+        let n = Vec3::from_array(record.unit_normal());
+        if n == Vec3::ZERO || !n.is_finite() {
+            return None;
+        }
+        Some(Shading {
+            x: Vec3::from_array(record.mean_position()),
+            n,
+            material: Material {
+                base_color: record.mean_base_color(),
+                metallic: record.mean_metallic(),
+                roughness: record.mean_roughness(),
+            },
+        })
+    }
+}
+
+impl<'a> Estimator<'a> {
+    /// The estimator with secondary-ray offset `eps` (usually [`self_hit_epsilon`]).
+    pub fn new(scene: &'a Placed<'a>, env: &'a EnvMap, eps: f32) -> Self {
+        Estimator { scene, env, eps }
+    }
+
+    /// One path sample along the camera ray `origin + t dir` (`dir` unit length), drawing
+    /// sample `index` of `sampler` (dimensions [`dim`]).
+    pub fn radiance(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        sampler: &Sampler,
+        index: u32,
+    ) -> PathSample {
+        let record = self.scene.composite(origin, dir, 0.0, f32::INFINITY);
+        let d = Vec3::from_array(dir);
+        if record.hits == 0 || record.alpha <= 0.0 {
+            // Seen only the environment: exactly its value (the world shading of Cycles).
+            return PathSample {
+                radiance: self.env.eval(d),
+                record,
+                rays: 1,
+            };
+        }
+        let mut rays = 1;
+        let surface = self.shade_primary(&record, -d, sampler, index, &mut rays);
+        let behind = self.env.eval(d);
+        let a = record.alpha;
+        let radiance = [0, 1, 2].map(|c| a * surface[c] + (1.0 - a) * behind[c]);
+        PathSample {
+            radiance,
+            record,
+            rays,
+        }
+    }
+
+    /// Visibility of the environment from `s` along `wi`: the transmittance of the offset ray.
+    #[inline]
+    fn visibility(&self, s: &Shading, wi: Vec3, rays: &mut u32) -> f32 {
+        *rays += 1;
+        let o = s.x + self.eps * s.n;
+        self.scene
+            .transmittance(o.to_array(), wi.to_array(), self.eps, f32::INFINITY)
+    }
+
+    /// Outgoing radiance towards `wo` of a primary record of unit coverage (eq.
+    /// rendering-equation with L_e = 0), estimated by eq. path-estimator with S = 1.
+    fn shade_primary(
+        &self,
+        record: &SurfaceRecord,
+        wo: Vec3,
+        sampler: &Sampler,
+        index: u32,
+        rays: &mut u32,
+    ) -> [f32; 3] {
+        let Some(s) = Shading::of(record) else {
+            return [0.0; 3];
+        };
+        let mut l = [0.0f32; 3];
+        // (a) Environment next-event estimation, MIS against the BSDF density.
+        let es = self.env.sample(sampler.get_2d(index, dim::ENV_NEE));
+        if es.pdf > 0.0 {
+            let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
+            if f.iter().any(|&v| v > 0.0) {
+                let tr = self.visibility(&s, es.dir, rays);
+                if tr > 0.0 {
+                    let w = power_heuristic(es.pdf, brdf::pdf(s.n, wo, es.dir, &s.material));
+                    add_scaled(&mut l, mul3(f, es.radiance), tr * w / es.pdf);
+                }
+            }
+        }
+        // (b) One BSDF continuation: escaped share MIS-weighted against the environment
+        // density, secondary record shaded by next-event estimation only.
+        let u_lobe = sampler.get(index, dim::LOBE);
+        let u_dir = sampler.get_2d(index, dim::BSDF);
+        if let Some(bs) = brdf::sample(s.n, wo, &s.material, u_dir, u_lobe) {
+            let o = s.x + self.eps * s.n;
+            *rays += 1;
+            let rec2 =
+                self.scene
+                    .composite(o.to_array(), bs.wi.to_array(), self.eps, f32::INFINITY);
+            let mut incoming = [0.0f32; 3];
+            let escaped = 1.0 - rec2.alpha;
+            if escaped > 0.0 {
+                let w = power_heuristic(bs.pdf, self.env.pdf(bs.wi));
+                add_scaled(&mut incoming, self.env.eval(bs.wi), escaped * w);
+            }
+            if rec2.hits > 0 && rec2.alpha > 0.0 {
+                let l2 = self.shade_secondary(&rec2, -bs.wi, sampler, index, rays);
+                add_scaled(&mut incoming, l2, rec2.alpha);
+            }
+            add_scaled(&mut l, mul3(bs.weight, incoming), 1.0);
+        }
+        l
+    }
+
+    /// Outgoing radiance of a secondary record: the mean of two environment next-event samples
+    /// with visibility (no MIS: no BSDF strategy competes at the last vertex).
+    fn shade_secondary(
+        &self,
+        record: &SurfaceRecord,
+        wo: Vec3,
+        sampler: &Sampler,
+        index: u32,
+        rays: &mut u32,
+    ) -> [f32; 3] {
+        let Some(s) = Shading::of(record) else {
+            return [0.0; 3];
+        };
+        let mut l = [0.0f32; 3];
+        for d in dim::SECONDARY_ENV {
+            let es = self.env.sample(sampler.get_2d(index, d));
+            if es.pdf <= 0.0 {
+                continue;
+            }
+            let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
+            if f.iter().all(|&v| v <= 0.0) {
+                continue;
+            }
+            let tr = self.visibility(&s, es.dir, rays);
+            if tr > 0.0 {
+                add_scaled(&mut l, mul3(f, es.radiance), tr * 0.5 / es.pdf);
+            }
+        }
+        l
+    }
+}
+
+/// Importance sampling of a separable pixel filter: Cycles' Blackman–Harris window (support
+/// `[−width, width]` pixels about the centre for a filter width `width`, Cycles doubling the
+/// width for this window), or a box over the pixel for `width ≤ 0`. Every sample then has
+/// weight one and the pixel is the plain mean of its samples, as in Cycles.
+#[derive(Clone, Debug)]
+pub struct PixelFilter {
+    /// Inverse CDF of the offset from the pixel centre, `TABLE + 1` entries; empty for a box.
+    inverse_cdf: Vec<f32>,
+}
+
+impl PixelFilter {
+    const TABLE: usize = 1024;
+
+    pub fn new(width: f32) -> PixelFilter {
+        if width.is_nan() || width <= 0.0 {
+            return PixelFilter {
+                inverse_cdf: Vec::new(),
+            };
+        }
+        // Tabulate the window on a fine grid, integrate, invert.
+        let full = 2.0 * width as f64;
+        let n = 4096;
+        let bh = |x: f64| {
+            let t = 2.0 * std::f64::consts::PI * (x / full + 0.5);
+            (0.35875 - 0.48829 * t.cos() + 0.14128 * (2.0 * t).cos() - 0.01168 * (3.0 * t).cos())
+                .max(0.0)
+        };
+        let xs: Vec<f64> = (0..=n)
+            .map(|i| -width as f64 + full * i as f64 / n as f64)
+            .collect();
+        let mut cdf = vec![0.0f64; n + 1];
+        for i in 0..n {
+            cdf[i + 1] = cdf[i] + 0.5 * (bh(xs[i]) + bh(xs[i + 1])) * (xs[i + 1] - xs[i]);
+        }
+        let total = cdf[n];
+        let mut inverse_cdf = Vec::with_capacity(Self::TABLE + 1);
+        let mut j = 0;
+        for k in 0..=Self::TABLE {
+            let u = total * k as f64 / Self::TABLE as f64;
+            while j + 1 < n && cdf[j + 1] < u {
+                j += 1;
+            }
+            let span = cdf[j + 1] - cdf[j];
+            let f = if span > 0.0 {
+                ((u - cdf[j]) / span).clamp(0.0, 1.0)
+            } else {
+                0.5
+            };
+            inverse_cdf.push((xs[j] + f * (xs[j + 1] - xs[j])) as f32);
+        }
+        PixelFilter { inverse_cdf }
+    }
+
+    /// Offset from the pixel centre for a uniform `u ∈ [0, 1)`.
+    #[inline]
+    pub fn offset(&self, u: f32) -> f32 {
+        if self.inverse_cdf.is_empty() {
+            return u - 0.5;
+        }
+        let x = u * Self::TABLE as f32;
+        let i = (x as usize).min(Self::TABLE - 1);
+        let f = x - i as f32;
+        self.inverse_cdf[i] + f * (self.inverse_cdf[i + 1] - self.inverse_cdf[i])
+    }
+}
+
+/// One pixel of a rendered image: the mean radiance and coverage over its samples, and the
+/// AOVs of the record at the pixel centre (as Blender renders its passes for the dataset).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Pixel {
+    pub rgb: [f32; 3],
+    /// Mean composited alpha over the samples (coverage).
+    pub alpha: f32,
+    /// Planar depth along the camera's viewing axis (DESIGN §2); 0 without a hit.
+    pub depth: f32,
+    /// Unit world normal facing the camera; 0 without a hit.
+    pub normal: [f32; 3],
+    /// Mean base colour; 0 without a hit.
+    pub albedo: [f32; 3],
+    /// Rays traced for this pixel.
+    pub rays: u32,
+}
+
+/// The camera's viewing axis in world space (−Z of the camera-to-world matrix).
+pub fn camera_forward(camera: &Camera) -> Vec3 {
+    let m = &camera.transform_matrix;
+    -Vec3::new(m[0][2], m[1][2], m[2][2]).normalize()
+}
+
+impl Estimator<'_> {
+    /// Renders pixel (x, y) of `camera` with `spp` samples of the stream of pixel id
+    /// `y · w + x` under `seed`.
+    pub fn pixel(
+        &self,
+        camera: &Camera,
+        filter: &PixelFilter,
+        (x, y): (u32, u32),
+        spp: u32,
+        seed: u32,
+    ) -> Pixel {
+        let sampler = Sampler::new(y * camera.w + x, seed);
+        let (cx, cy) = (x as f32 + 0.5, y as f32 + 0.5);
+        let mut px = Pixel::default();
+        for i in 0..spp {
+            let [ux, uy] = sampler.get_2d(i, dim::PIXEL);
+            let (o, d) = camera.ray(cx + filter.offset(ux), cy + filter.offset(uy));
+            let p = self.radiance(o, d, &sampler, i);
+            add_scaled(&mut px.rgb, p.radiance, 1.0);
+            px.alpha += p.record.alpha;
+            px.rays += p.rays;
+        }
+        let inv = 1.0 / spp.max(1) as f32;
+        px.rgb = px.rgb.map(|v| v * inv);
+        px.alpha *= inv;
+        let (o, d) = camera.ray(cx, cy);
+        let rec = self.scene.composite(o, d, 0.0, f32::INFINITY);
+        px.rays += 1;
+        if rec.hits > 0 && rec.alpha > 0.0 {
+            px.depth = rec.mean_depth() * Vec3::from_array(d).dot(camera_forward(camera));
+            px.normal = rec.unit_normal();
+            px.albedo = rec.mean_base_color();
+        }
+        px
+    }
+}
