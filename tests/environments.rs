@@ -2,26 +2,13 @@
 //! energy, and survive `lightfuse env` and the glTF round trip.
 
 use lightfuse::io::exr;
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::PathBuf;
 use std::process::Command;
 
-/// Blender's 8 CC0 world HDRIs, shipped inside the bpy wheel of the project venv.
 fn bundled_hdris() -> Vec<PathBuf> {
-    let site = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/lib");
-    let dir = std::fs::read_dir(&site)
-        .unwrap_or_else(|_| {
-            panic!(
-                "{} is missing: run `bash scripts/setup.sh` (it installs bpy)",
-                site.display()
-            )
-        })
-        .filter_map(|e| e.ok())
-        .map(|e| {
-            e.path()
-                .join("site-packages/bpy/5.0/datafiles/studiolights/world")
-        })
-        .find(|p| p.is_dir())
-        .expect("bpy's studiolights/world folder in the venv");
+    let dir = common::bundled_hdri_dir();
     let mut files: Vec<_> = std::fs::read_dir(dir)
         .unwrap()
         .filter_map(|e| e.ok())

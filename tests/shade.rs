@@ -14,6 +14,8 @@
 //!
 //! Sample counts are modest so the file runs in a few seconds in the debug profile.
 
+mod common;
+
 use glam::{DVec3, Vec3};
 use lightfuse::scene::Environment;
 use lightfuse::shade::brdf::{self, Material};
@@ -574,21 +576,7 @@ fn random_env(w: usize, h: usize, seed: u64) -> Environment {
 }
 
 fn real_env() -> Environment {
-    let site = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/lib");
-    let dir = std::fs::read_dir(&site)
-        .unwrap_or_else(|_| {
-            panic!(
-                "{} is missing: run `bash scripts/setup.sh` (it installs bpy)",
-                site.display()
-            )
-        })
-        .filter_map(|e| e.ok())
-        .map(|e| {
-            e.path()
-                .join("site-packages/bpy/5.0/datafiles/studiolights/world")
-        })
-        .find(|p| p.is_dir())
-        .expect("bpy's studiolights/world folder in the venv");
+    let dir = common::bundled_hdri_dir();
     let env = lightfuse::io::exr::read_environment(&dir.join("courtyard.exr"), "courtyard")
         .expect("Blender's courtyard.exr decodes");
     env.resample(64, 32)
