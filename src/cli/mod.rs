@@ -1,6 +1,7 @@
 //! The `lightfuse` command line: a thin layer over the library. Each subcommand's options are
 //! one clap struct whose `///` docs are its `--help`.
 
+mod bench;
 mod info;
 mod render;
 
@@ -36,6 +37,9 @@ pub enum Command {
     /// Read an environment map (any EXR compression, e.g. Blender's DWAB HDRIs), optionally
     /// resample it (area-weighted, energy kept), and write it as float RGB EXR.
     Env(EnvArgs),
+    /// Time LightFuse and Cycles rendering the same dataset state (cameras, resolution, spp,
+    /// bounces limited to one indirect), back to back; print both times and their ratio.
+    Bench(BenchArgs),
     /// Path-trace images of a scene (one-bounce estimator) for a state or layout, an
     /// environment and a set of cameras: per camera an HDR EXR with AOVs and an sRGB PNG.
     Render(RenderArgs),
@@ -80,6 +84,30 @@ pub struct RenderArgs {
     /// per camera, NAME the frame's file stem.
     #[arg(long)]
     pub out: PathBuf,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct BenchArgs {
+    /// LightFuse scene to render (e.g. the oracle scene of `surfelize --dataset`).
+    pub scene: PathBuf,
+    /// Dataset (folder or dataset.json) whose scene.blend Cycles renders and whose cameras both use.
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// State to render: the scene's state and the dataset's cameras, layout and environment.
+    #[arg(long, default_value = "state0")]
+    pub state: String,
+    /// Samples per pixel, the same for both renderers.
+    #[arg(long, default_value_t = 32)]
+    pub spp: u32,
+    /// Cycles' max bounces; 1 matches the one-bounce estimator (one indirect bounce).
+    #[arg(long, default_value_t = 1)]
+    pub max_bounces: u32,
+    /// Environment file for Cycles (default: the dataset state's own).
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Python with bpy (default: the project's .venv).
+    #[arg(long)]
+    pub python: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -189,6 +217,7 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Surfelize(a) => surfelize(cli, a),
         Command::Env(a) => env(cli, a),
         Command::Render(a) => render::run(cli, a),
+        Command::Bench(a) => bench::run(cli, a),
     }
 }
 
