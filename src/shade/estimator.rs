@@ -229,17 +229,15 @@ impl<'a> Estimator<'a> {
         };
         let mut l = [0.0f32; 3];
         // (a) Environment next-event estimation, MIS against the BSDF density.
-        let es = self.env.sample(sampler.get_2d(index, dim::ENV_NEE));
-        if es.pdf > 0.0 {
-            let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
-            if f.iter().any(|&v| v > 0.0) {
-                let tr = self.visibility(&s, es.dir, rays);
-                if tr > 0.0 {
-                    let w = power_heuristic(es.pdf, brdf::pdf(s.n, wo, es.dir, &s.material));
-                    add_scaled(&mut l, mul3(f, es.radiance), tr * w / es.pdf);
-                }
-            }
-        }
+        self.env_nee(
+            &s,
+            wo,
+            sampler.get_2d(index, dim::ENV_NEE),
+            true,
+            1.0,
+            &mut l,
+            rays,
+        );
         // (b) One BSDF continuation: escaped share MIS-weighted against the environment
         // density, secondary record shaded by next-event estimation only.
         let u_lobe = sampler.get(index, dim::LOBE);
@@ -280,20 +278,50 @@ impl<'a> Estimator<'a> {
         };
         let mut l = [0.0f32; 3];
         for d in dim::SECONDARY_ENV {
-            let es = self.env.sample(sampler.get_2d(index, d));
-            if es.pdf <= 0.0 {
-                continue;
-            }
-            let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
-            if f.iter().all(|&v| v <= 0.0) {
-                continue;
-            }
-            let tr = self.visibility(&s, es.dir, rays);
-            if tr > 0.0 {
-                add_scaled(&mut l, mul3(f, es.radiance), tr * 0.5 / es.pdf);
-            }
+            let n = dim::SECONDARY_ENV.len() as f32;
+            self.env_nee(
+                &s,
+                wo,
+                sampler.get_2d(index, d),
+                false,
+                1.0 / n,
+                &mut l,
+                rays,
+            );
         }
         l
+    }
+
+    /// One environment next-event sample at a shading point: f·cos·L·T / pdf, times the power
+    /// heuristic against the BSDF density when `mis` (a BSDF continuation competes), times `scale`.
+    #[allow(clippy::too_many_arguments)]
+    fn env_nee(
+        &self,
+        s: &Shading,
+        wo: Vec3,
+        u: [f32; 2],
+        mis: bool,
+        scale: f32,
+        l: &mut [f32; 3],
+        rays: &mut u32,
+    ) {
+        let es = self.env.sample(u);
+        if es.pdf <= 0.0 {
+            return;
+        }
+        let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
+        if f.iter().all(|&v| v <= 0.0) {
+            return;
+        }
+        let tr = self.visibility(s, es.dir, rays);
+        if tr > 0.0 {
+            let w = if mis {
+                power_heuristic(es.pdf, brdf::pdf(s.n, wo, es.dir, &s.material))
+            } else {
+                1.0
+            };
+            add_scaled(l, mul3(f, es.radiance), tr * w * scale / es.pdf);
+        }
     }
 }
 
