@@ -88,11 +88,7 @@ def main(argv=None):
         raise UserError(f"{a.blend}: file not found")
     import bpy
 
-    try:
-        with lf.quiet_stdout():
-            bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend))
-    except RuntimeError as e:
-        raise UserError(f"{a.blend}: cannot open as a Blender file ({str(e).strip()})") from None
+    lf.open_blend(a.blend)
     layout = layout_from_blend(a.blend)
     lf.write_json(a.out, {"format": lf.LAYOUT_FORMAT, "objects": {k: lf.rows(v) for k, v in layout.items()}})
     print(f"[export_layout] wrote {a.out}: {len(layout)} objects", flush=True)

@@ -140,11 +140,7 @@ def main(argv=None):
         raise UserError(f"--out {a.out}: expected a .glb file name")
     import bpy
 
-    try:
-        with lf.quiet_stdout():
-            bpy.ops.wm.open_mainfile(filepath=os.path.abspath(scene_path))
-    except RuntimeError as e:
-        raise UserError(f"{scene_path}: cannot open as a Blender scene ({str(e).strip()})") from None
+    lf.open_blend(scene_path)
     rec = lf.get_record(scene_path)
     if a.state:
         if a.state not in rec.get("states", {}):

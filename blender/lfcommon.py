@@ -405,6 +405,17 @@ def make_tmpdir() -> str:
 # ----------------------------------------------------------------------------- scene record
 
 
+def open_blend(path: str) -> None:
+    """Open a .blend as the current file, quietly; a file Blender cannot open is a UserError."""
+    import bpy
+
+    try:
+        with quiet_stdout():
+            bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path))
+    except RuntimeError as e:
+        raise UserError(f"{path}: cannot open as a Blender file ({str(e).strip()})") from None
+
+
 def get_record(where: str) -> dict:
     """The LightFuse record stored in a generated scene.blend (objects, reference matrices)."""
     import bpy

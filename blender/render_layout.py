@@ -115,11 +115,7 @@ def main(argv=None):
 
     import bpy
 
-    try:
-        with lf.quiet_stdout():
-            bpy.ops.wm.open_mainfile(filepath=os.path.abspath(scene_path))
-    except RuntimeError as e:
-        raise UserError(f"{scene_path}: cannot open as a Blender scene ({str(e).strip()})") from None
+    lf.open_blend(scene_path)
     rec = lf.get_record(scene_path)
     layout = lf.read_layout(a.layout) if a.layout else {}
     lf.apply_layout_bl(rec, layout, a.layout or "layout")
