@@ -7,12 +7,19 @@
 //!   visibility rays (from random surface points in random hemisphere directions), all rays in
 //!   parallel with rayon; criterion reports rays/s.
 //!
+//! - `render_128x128_32spp`: a whole image of the one-bounce estimator (eq. path-estimator) into
+//!   the room, lit by a smooth synthetic sky through its open side: 128×128 pixels at 32 spp,
+//!   rayon over rows, as `lightfuse render` does for a view (the Cycles comparison of the same
+//!   work is `lightfuse bench`).
+//!
 //! Run: `cargo bench --bench trace`. Numbers are noisy on a shared machine.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::{Mat3, Quat, Vec3};
 use lightfuse::scene::synthetic::SplitMix;
-use lightfuse::scene::{Camera, Component, Rigid, Scene, Surfels};
+use lightfuse::scene::{Camera, Component, Environment, Rigid, Scene, Surfels};
+use lightfuse::shade::envmap::EnvMap;
+use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter};
 use lightfuse::trace::TraceScene;
 use rayon::prelude::*;
 use std::hint::black_box;
@@ -164,12 +171,15 @@ fn room(n: usize) -> Scene {
 
 /// A 640×480 camera near the front wall looking into the room (DESIGN §2 conventions).
 fn camera() -> Camera {
+    camera_of(640, 480)
+}
+
+fn camera_of(w: u32, h: u32) -> Camera {
     let eye = Vec3::new(0.3, 1.6, 3.6);
     let forward = (Vec3::new(0.0, 0.8, -2.0) - eye).normalize();
     let right = forward.cross(Vec3::Y).normalize();
     let up = right.cross(forward);
     let back = -forward;
-    let (w, h) = (640u32, 480u32);
     let fl = 0.5 * w as f32 / (0.5 * 70f32.to_radians()).tan();
     Camera {
         transform_matrix: [
@@ -308,5 +318,47 @@ fn rays(c: &mut Criterion) {
     );
 }
 
-criterion_group!(benches, build, rays);
+/// A smooth sky: brighter towards +Y and towards one side, 128×64 texels.
+fn sky() -> Environment {
+    let (w, h) = (128usize, 64usize);
+    let px = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
+            let up = (1.0 - y).powi(2);
+            [0.3 + 1.5 * up + x, 0.35 + 1.6 * up, 0.4 + 2.0 * up]
+        })
+        .collect();
+    Environment::new("sky", w, h, px)
+}
+
+fn render(c: &mut Criterion) {
+    let scene = room(200_000);
+    let traced = TraceScene::new(&scene);
+    let placed = traced.place_state(&scene.states[0]);
+    let env = EnvMap::new(&sky(), 0.0);
+    let estimator = Estimator::new(&placed, &env, self_hit_epsilon(&scene, &scene.states[0]));
+    let filter = PixelFilter::new(1.5);
+    let cam = camera_of(128, 128);
+    let mut group = c.benchmark_group("render_128x128_32spp");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(20));
+    group.throughput(Throughput::Elements((cam.w * cam.h) as u64));
+    group.bench_function("one_bounce", |b| {
+        b.iter(|| {
+            (0..cam.h)
+                .into_par_iter()
+                .map(|y| {
+                    (0..cam.w)
+                        .map(|x| estimator.pixel(&cam, &filter, (x, y), 32, 0).rgb[1])
+                        .sum::<f32>()
+                })
+                .sum::<f32>()
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, build, rays, render);
 criterion_main!(benches);

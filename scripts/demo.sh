@@ -17,7 +17,7 @@ fi
 echo "== exporting the reference state as a glTF mesh scene"
 .venv/bin/python blender/export_mesh_scene.py --dataset "$out/dataset" --out "$out/mesh_scene.glb"
 echo "== surfelizing (oracle scene: every state with its ground-truth poses and environment)"
-"$lf" surfelize "$out/mesh_scene.glb" -o "$out/scene.glb" --spacing 0.01 --dataset "$out/dataset" --env-size 256x128
+"$lf" surfelize "$out/mesh_scene.glb" -o "$out/scene.glb" --spacing 0.005 --dataset "$out/dataset" --env-size 256x128
 "$lf" info "$out/scene.glb"
 echo "== converting"
 "$lf" convert "$out/scene.glb" "$out/scene.usda"

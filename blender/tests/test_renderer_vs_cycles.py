@@ -1,0 +1,79 @@
+"""LightFuse's one-bounce path tracer against Cycles on the very same scene (issue 4, "Show").
+
+The `demo` dataset's scene is exported as a glTF mesh scene (`export_mesh_scene.py`, baked base
+colours), surfelized at 5 mm into an oracle scene (`lightfuse surfelize --dataset`), and state0's
+eight cameras are rendered by both renderers under the same 256x128 environment (the very map
+stored in the oracle scene, written out by `lightfuse convert` to .gltf), Cycles limited to one
+indirect bounce (`--max-bounces 1`, as eq. path-estimator).  `compare_renders.py` gives PSNR in
+sRGB averaged over views, and over the pixels where both renderers saw only the environment.
+
+Thresholds are the issue's: >= 30 dB over all pixels, >= 45 dB on the background.  Sample counts
+keep noise from deciding: Cycles 512 spp against LightFuse 128 spp gives 33.0 dB, Cycles 1024
+against LightFuse 256 spp 33.75 dB (measured), so noise costs under 1 dB here.  The 1 cm default
+scene reaches only ~28.8 dB: the remaining gap is the surfel discretisation of texture and
+silhouette edges, not shading (see the issue note).
+
+A control shows the test can fail: the same environment rotated by 5 degrees about +Y drops the
+background agreement far below 45 dB.
+"""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from bltest import BLENDER_DIR, REPO, run_script
+
+LIGHTFUSE = os.environ.get("LIGHTFUSE_BIN", os.path.join(REPO, "target", "release", "lightfuse"))
+CYCLES_SPP = 512
+LIGHTFUSE_SPP = 128
+
+
+def lf(*args):
+    p = subprocess.run([LIGHTFUSE, *map(str, args)], capture_output=True, text=True)
+    assert p.returncode == 0, f"lightfuse {' '.join(map(str, args))}:\n{p.stderr[-3000:]}"
+    return p.stdout
+
+
+def compare(ref, test):
+    p = subprocess.run([sys.executable, os.path.join(BLENDER_DIR, "compare_renders.py"), "--ref", ref,
+                        "--test", test, "--json"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    return json.loads(p.stdout)
+
+
+@pytest.fixture(scope="module")
+def oracle(tmp_path_factory):
+    """The demo dataset, its oracle scene at 5 mm and state0's environment as the scene stores it."""
+    root = tmp_path_factory.mktemp("vs_cycles")
+    ds = root / "demo"
+    run_script("generate.py", "--demo", "--seed", "0", "--out", ds)
+    mesh = root / "mesh_scene.glb"
+    run_script("export_mesh_scene.py", "--dataset", ds, "--out", mesh)
+    scene = root / "scene.glb"
+    lf("surfelize", mesh, "-o", scene, "--spacing", "0.005", "--dataset", ds, "--env-size", "256x128")
+    lf("convert", scene, root / "scene.gltf")
+    env_dir = root / "scene.env"
+    env = next(env_dir / n for n in sorted(os.listdir(env_dir)) if n.endswith("_state0.exr"))
+    return {"root": root, "dataset": ds, "scene": scene, "env": env}
+
+
+def test_one_bounce_render_matches_cycles(oracle):
+    root, ds = oracle["root"], oracle["dataset"]
+    cy, ours = root / "cycles", root / "lightfuse"
+    run_script("render_layout.py", "--dataset", ds, "--state", "state0", "--env", oracle["env"],
+               "--spp", CYCLES_SPP, "--max-bounces", "1", "--rgb-only", "--quiet", "--out", cy)
+    lf("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", LIGHTFUSE_SPP,
+       "--out", ours)
+    r = compare(cy, ours)
+    print(f"LightFuse vs Cycles, state0, 8 views: {r['psnr_all']:.2f} dB, background {r['psnr_background']:.2f} dB")
+    assert len(r["views"]) == 8
+    assert r["psnr_all"] >= 30.0, r
+    assert r["psnr_background"] >= 45.0, r
+
+    # Control: a 5 degree turn of the environment must be caught by the background figure.
+    turned = root / "turned"
+    lf("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", "4",
+       "--env", oracle["env"], "--env-rotation", "5", "--out", turned)
+    assert compare(cy, turned)["psnr_background"] < 40.0
