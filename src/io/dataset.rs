@@ -18,7 +18,17 @@ pub struct DatasetObject {
 
 #[derive(Deserialize, Debug, Clone)]
 pub struct Frame {
+    /// Linear RGB EXR (channels R, G, B).
     pub file_path: String,
+    /// Planar depth EXR (channel Z, metres, 0 = no hit).
+    #[serde(default)]
+    pub depth_file_path: Option<String>,
+    /// World-space normal EXR (R, G, B = x, y, z; zero where nothing was hit).
+    #[serde(default)]
+    pub normal_file_path: Option<String>,
+    /// 8-bit object-id PNG (0 = background, otherwise a `DatasetObject::id`).
+    #[serde(default)]
+    pub mask_path: Option<String>,
     #[serde(flatten)]
     pub camera: Camera,
 }
@@ -113,4 +123,140 @@ impl Dataset {
     pub fn path(&self, relative: &str) -> PathBuf {
         self.root.join(relative)
     }
+
+    /// Indices of the training states (`split == "train"`), in file order.
+    pub fn train_states(&self) -> Vec<usize> {
+        (0..self.states.len())
+            .filter(|&k| self.states[k].split == "train")
+            .collect()
+    }
+
+    /// Loads what training may read of frame `v` of state `k`: RGB, depth, normal and object
+    /// mask, each checked against the camera's size; the mask's ids against the dataset's
+    /// objects. Errors name the image file and what was wrong.
+    pub fn observation(&self, k: usize, v: usize) -> Result<Observation> {
+        let frame = &self.states[k].frames[v];
+        let field = |name: &str| format!("states[{k}].frames[{v}].{name}");
+        let camera = frame.camera.clone();
+        let n = camera.w as usize * camera.h as usize;
+        let need = |p: &Option<String>, name: &str| -> Result<PathBuf> {
+            p.as_deref().map(|r| self.path(r)).ok_or_else(|| {
+                Error::invalid(
+                    &self.file,
+                    field(name),
+                    "expected a file path (training reads it)",
+                )
+            })
+        };
+        let rgb_path = self.path(&frame.file_path);
+        let rgb = read_planes(&rgb_path, &["R", "G", "B"], &camera)?;
+        let depth_path = need(&frame.depth_file_path, "depth_file_path")?;
+        let depth = read_planes(&depth_path, &["Z"], &camera)?;
+        let normal_path = need(&frame.normal_file_path, "normal_file_path")?;
+        let normal = read_planes(&normal_path, &["R", "G", "B"], &camera)?;
+        let mask_path = need(&frame.mask_path, "mask_path")?;
+        let mask = read_mask(&mask_path, &camera)?;
+        let known: Vec<u32> = self.objects.iter().map(|o| o.id).collect();
+        if let Some(bad) = mask
+            .iter()
+            .find(|&&m| m != 0 && !known.contains(&(m as u32)))
+        {
+            return Err(Error::invalid(
+                &mask_path,
+                "pixel values",
+                format!(
+                    "object id {bad} in the mask, but the dataset's objects have ids {known:?}"
+                ),
+            ));
+        }
+        let three = |p: &[Vec<f32>]| -> Vec<[f32; 3]> {
+            (0..n).map(|i| [p[0][i], p[1][i], p[2][i]]).collect()
+        };
+        for (i, z) in depth[0].iter().enumerate() {
+            if !(z.is_finite() && *z >= 0.0) {
+                return Err(Error::invalid(
+                    &depth_path,
+                    "Z",
+                    format!("expected finite depth >= 0, found {z} at pixel {i}"),
+                ));
+            }
+        }
+        Ok(Observation {
+            state: k,
+            view: v,
+            camera,
+            rgb: three(&rgb),
+            depth: depth.into_iter().next().unwrap_or_default(),
+            normal: three(&normal),
+            mask,
+        })
+    }
+}
+
+/// One training image with its geometry passes, row-major, `w * h` pixels each.
+#[derive(Debug, Clone)]
+pub struct Observation {
+    pub state: usize,
+    pub view: usize,
+    pub camera: Camera,
+    /// Scene-linear RGB.
+    pub rgb: Vec<[f32; 3]>,
+    /// Planar depth in metres along the camera's −Z axis; 0 where nothing was hit.
+    pub depth: Vec<f32>,
+    /// World-space unit normals; zero where nothing was hit.
+    pub normal: Vec<[f32; 3]>,
+    /// Object id per pixel, 0 = background.
+    pub mask: Vec<u8>,
+}
+
+fn read_planes(path: &Path, names: &[&str], camera: &Camera) -> Result<Vec<Vec<f32>>> {
+    if !path.is_file() {
+        return Err(Error::invalid(
+            path,
+            "file",
+            "expected an image here (the dataset names it)",
+        ));
+    }
+    let img = super::exr::read_channels(path)?;
+    if (img.width, img.height) != (camera.w as usize, camera.h as usize) {
+        return Err(Error::invalid(
+            path,
+            "size",
+            format!(
+                "expected {}x{} like its camera, found {}x{}",
+                camera.w, camera.h, img.width, img.height
+            ),
+        ));
+    }
+    names
+        .iter()
+        .map(|c| {
+            img.get(c).map(<[f32]>::to_vec).ok_or_else(|| {
+                Error::invalid(
+                    path,
+                    format!("channel {c}"),
+                    "expected this channel in the EXR",
+                )
+            })
+        })
+        .collect()
+}
+
+fn read_mask(path: &Path, camera: &Camera) -> Result<Vec<u8>> {
+    let img = image::open(path)
+        .map_err(|e| Error::invalid(path, "file", format!("expected an 8-bit PNG mask: {e}")))?;
+    if (img.width(), img.height()) != (camera.w, camera.h) {
+        return Err(Error::invalid(
+            path,
+            "size",
+            format!(
+                "expected {}x{} like its camera, found {}x{}",
+                camera.w,
+                camera.h,
+                img.width(),
+                img.height()
+            ),
+        ));
+    }
+    Ok(img.into_luma8().into_raw())
 }
