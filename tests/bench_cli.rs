@@ -23,7 +23,7 @@ fn bench_bad_input_is_a_clear_error() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("nowhere"));
 
     let ds = dir.path().join("dataset.json");
-    std::fs::write(&ds, r#"{"format":"lightfuse-dataset/1","objects":[],"states":[{"name":"a","split":"train","frames":[{"file_path":"x.exr","transform_matrix":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]],"fl_x":10,"fl_y":10,"cx":1,"cy":1,"w":2,"h":2}]}]}"#).unwrap();
+    std::fs::write(&ds, r#"{"format":"lightfuse-dataset/1","up":"+Y","objects":[],"states":[{"name":"a","split":"train","frames":[{"file_path":"x.exr","transform_matrix":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]],"fl_x":10,"fl_y":10,"cx":1,"cy":1,"w":2,"h":2}]}]}"#).unwrap();
     let out = Command::new(bin)
         .arg("bench")
         .arg(&scene)

@@ -100,12 +100,12 @@ fn dataset_errors_are_clear() {
         e.contains("dataset.json") && e.contains("lightfuse-dataset/1"),
         "{e}"
     );
-    std::fs::write(&p, r#"{"format":"lightfuse-dataset/1","objects":[{"id":1,"name":"a"}],"states":[{"name":"s","split":"train","object_poses":{"b":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}}]}"#).unwrap();
+    std::fs::write(&p, r#"{"format":"lightfuse-dataset/1","up":"+Y","objects":[{"id":1,"name":"a"}],"states":[{"name":"s","split":"train","object_poses":{"b":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}}]}"#).unwrap();
     let e = lightfuse::io::dataset::Dataset::read(&p)
         .unwrap_err()
         .to_string();
     assert!(e.contains("object_poses.b"), "{e}");
-    std::fs::write(&p, r#"{"format":"lightfuse-dataset/1","objects":[],"states":[{"name":"s","split":"train","frames":[{"file_path":"x.exr","transform_matrix":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]],"fl_x":0,"fl_y":10,"cx":1,"cy":1,"w":2,"h":2}]}]}"#).unwrap();
+    std::fs::write(&p, r#"{"format":"lightfuse-dataset/1","up":"+Y","objects":[],"states":[{"name":"s","split":"train","frames":[{"file_path":"x.exr","transform_matrix":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]],"fl_x":0,"fl_y":10,"cx":1,"cy":1,"w":2,"h":2}]}]}"#).unwrap();
     let e = lightfuse::io::dataset::Dataset::read(&p)
         .unwrap_err()
         .to_string();

@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::scene::{Camera, Rigid};
+use rayon::prelude::*;
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -58,6 +59,8 @@ pub struct DatasetState {
 #[derive(Deserialize, Debug, Clone)]
 pub struct Dataset {
     pub format: String,
+    /// Must be "+Y".
+    pub up: String,
     pub objects: Vec<DatasetObject>,
     pub states: Vec<DatasetState>,
     /// The folder holding `dataset.json`; every path in the file is relative to it.
@@ -92,6 +95,59 @@ impl Dataset {
         }
         d.root = file.parent().unwrap_or(Path::new("")).to_path_buf();
         d.file = file;
+        if d.up != "+Y" {
+            return Err(Error::invalid(
+                &d.file,
+                "up",
+                format!("expected \"+Y\" (DESIGN §2), found {:?}", d.up),
+            ));
+        }
+        for (i, o) in d.objects.iter().enumerate() {
+            let field = format!("objects[{i}]");
+            if !(1..=255).contains(&o.id) {
+                return Err(Error::invalid(
+                    &d.file,
+                    format!("{field}.id"),
+                    format!("expected 1..=255 (0 is the background), found {}", o.id),
+                ));
+            }
+            if o.name.is_empty() || o.name == "background" {
+                return Err(Error::invalid(
+                    &d.file,
+                    format!("{field}.name"),
+                    "expected a non-empty name other than \"background\"",
+                ));
+            }
+            if let Some(j) = d.objects[..i]
+                .iter()
+                .position(|p| p.id == o.id || p.name == o.name)
+            {
+                return Err(Error::invalid(
+                    &d.file,
+                    field,
+                    format!("expected unique ids and names, but objects[{j}] has the same"),
+                ));
+            }
+        }
+        if d.states.is_empty() {
+            return Err(Error::invalid(
+                &d.file,
+                "states",
+                "expected at least one state",
+            ));
+        }
+        for (k, st) in d.states.iter().enumerate() {
+            if let Some(j) = d.states[..k].iter().position(|p| p.name == st.name) {
+                return Err(Error::invalid(
+                    &d.file,
+                    format!("states[{k}].name"),
+                    format!(
+                        "expected unique state names, but states[{j}] is also {:?}",
+                        st.name
+                    ),
+                ));
+            }
+        }
         for (k, s) in d.states.iter().enumerate() {
             for name in s.object_poses.keys() {
                 if !d.objects.iter().any(|o| &o.name == name) {
@@ -122,6 +178,56 @@ impl Dataset {
 
     pub fn path(&self, relative: &str) -> PathBuf {
         self.root.join(relative)
+    }
+
+    /// What training needs before any work starts: at least one training state, each with
+    /// frames; every frame's RGB, depth, normal and mask present, of its camera's size, masks
+    /// naming only known objects; and every object visible in at least one training view.
+    /// Returns the observations of the training states, state by state.
+    pub fn training_observations(&self) -> Result<Vec<Vec<Observation>>> {
+        let train = self.train_states();
+        if train.is_empty() {
+            return Err(Error::invalid(
+                &self.file,
+                "states[].split",
+                "expected at least one state with split \"train\"",
+            ));
+        }
+        let mut seen = vec![0usize; 256];
+        let mut all = Vec::with_capacity(train.len());
+        for &k in &train {
+            if self.states[k].frames.is_empty() {
+                return Err(Error::invalid(
+                    &self.file,
+                    format!("states[{k}].frames"),
+                    format!(
+                        "expected at least one frame in training state {:?}",
+                        self.states[k].name
+                    ),
+                ));
+            }
+            let obs: Vec<Observation> = (0..self.states[k].frames.len())
+                .into_par_iter()
+                .map(|v| self.observation(k, v))
+                .collect::<Result<_>>()?;
+            for o in &obs {
+                for &m in &o.mask {
+                    seen[m as usize] += 1;
+                }
+            }
+            all.push(obs);
+        }
+        if let Some(o) = self.objects.iter().find(|o| seen[o.id as usize] == 0) {
+            return Err(Error::invalid(
+                &self.file,
+                "objects",
+                format!(
+                    "object {:?} (id {}) is visible in no training view's mask: nothing to reconstruct it from",
+                    o.name, o.id
+                ),
+            ));
+        }
+        Ok(all)
     }
 
     /// Indices of the training states (`split == "train"`), in file order.
@@ -228,6 +334,10 @@ fn read_planes(path: &Path, names: &[&str], camera: &Camera) -> Result<Vec<Vec<f
             ),
         ));
     }
+    // A one-channel image is accepted whatever its channel is called (the schema allows it).
+    if names.len() == 1 && img.channels.len() == 1 {
+        return Ok(vec![img.channels[0].1.clone()]);
+    }
     names
         .iter()
         .map(|c| {
@@ -243,6 +353,34 @@ fn read_planes(path: &Path, names: &[&str], camera: &Camera) -> Result<Vec<Vec<f
 }
 
 fn read_mask(path: &Path, camera: &Camera) -> Result<Vec<u8>> {
+    let is_exr = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    if is_exr {
+        let plane = read_planes(path, &["Y"], camera)?.remove(0);
+        return plane
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| {
+                if v >= 0.0 && v <= 255.0 && v.fract() == 0.0 {
+                    Ok(v as u8)
+                } else {
+                    Err(Error::invalid(
+                        path,
+                        "pixel values",
+                        format!("expected integer object ids 0..=255, found {v} at pixel {i}"),
+                    ))
+                }
+            })
+            .collect();
+    }
+    if !path.is_file() {
+        return Err(Error::invalid(
+            path,
+            "file",
+            "expected an image here (the dataset names it)",
+        ));
+    }
     let img = image::open(path)
         .map_err(|e| Error::invalid(path, "file", format!("expected an 8-bit PNG mask: {e}")))?;
     if (img.width(), img.height()) != (camera.w, camera.h) {
