@@ -243,7 +243,7 @@ impl Dataset {
     pub fn observation(&self, k: usize, v: usize) -> Result<Observation> {
         let frame = &self.states[k].frames[v];
         let field = |name: &str| format!("states[{k}].frames[{v}].{name}");
-        let camera = frame.camera.clone();
+        let camera = frame.camera;
         let n = camera.w as usize * camera.h as usize;
         let need = |p: &Option<String>, name: &str| -> Result<PathBuf> {
             p.as_deref().map(|r| self.path(r)).ok_or_else(|| {
