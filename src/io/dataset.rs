@@ -362,7 +362,7 @@ fn read_mask(path: &Path, camera: &Camera) -> Result<Vec<u8>> {
             .iter()
             .enumerate()
             .map(|(i, &v)| {
-                if v >= 0.0 && v <= 255.0 && v.fract() == 0.0 {
+                if (0.0..=255.0).contains(&v) && v.fract() == 0.0 {
                     Ok(v as u8)
                 } else {
                     Err(Error::invalid(

@@ -1,0 +1,507 @@
+//! From surfels and a camera to what the tile loops read: the camera as affine pixel rays, each
+//! surfel's hit test as a handful of affine coefficients (2DGS's homography, written as a ray–
+//! plane intersection), its colour, its pixel rectangle, and the depth-sorted tile lists.
+
+use super::{sh, Placement, CUTOFF, FILTER_INV_VARIANCE, MAX_OPACITY, MIN_ALPHA, NEAR, TILE};
+use crate::scene::{Camera, Surfels};
+use glam::{Mat3, Quat, Vec3};
+use rayon::prelude::*;
+
+/// The camera as the rasteriser uses it. The ray through pixel coordinates (u, v) is
+/// `d(u, v) = d0 + u du + v dv` with `d · fwd = 1`, so the ray parameter of a hit is its planar
+/// depth (DESIGN §2), and `d` is affine in (u, v): every per-pixel dot product is too.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct View {
+    pub o: Vec3,
+    pub right: Vec3,
+    pub up: Vec3,
+    /// The viewing axis, −Z of the camera (OpenGL convention).
+    pub fwd: Vec3,
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+    pub width: u32,
+    pub height: u32,
+    pub tiles_x: u32,
+    pub tiles_y: u32,
+    pub d0: Vec3,
+    pub du: Vec3,
+    pub dv: Vec3,
+}
+
+impl View {
+    pub fn new(camera: &Camera) -> View {
+        let m = &camera.transform_matrix;
+        let col = |c: usize| Vec3::new(m[0][c], m[1][c], m[2][c]);
+        let (right, up, fwd) = (col(0), col(1), -col(2));
+        let du = right / camera.fl_x;
+        let dv = -up / camera.fl_y;
+        View {
+            o: col(3),
+            right,
+            up,
+            fwd,
+            fx: camera.fl_x,
+            fy: camera.fl_y,
+            cx: camera.cx,
+            cy: camera.cy,
+            width: camera.w,
+            height: camera.h,
+            tiles_x: camera.w.div_ceil(TILE),
+            tiles_y: camera.h.div_ceil(TILE),
+            d0: fwd - camera.cx * du - camera.cy * dv,
+            du,
+            dv,
+        }
+    }
+
+    pub fn tiles(&self) -> usize {
+        self.tiles_x as usize * self.tiles_y as usize
+    }
+
+    /// Pixel coordinates of the world offset `a = x − o` (which must lie in front).
+    #[inline]
+    pub fn project(&self, a: Vec3) -> [f32; 2] {
+        let z = a.dot(self.fwd);
+        [
+            self.cx + self.fx * a.dot(self.right) / z,
+            self.cy - self.fy * a.dot(self.up) / z,
+        ]
+    }
+}
+
+/// One surfel placed in the world: what the forward pass and the backward pass both derive the
+/// same way from the inputs.
+pub(crate) struct WorldSurfel {
+    pub p: Vec3,
+    /// Columns t_u, t_v, n.
+    pub axes: Mat3,
+    pub scale: [f32; 2],
+    pub opacity: f32,
+}
+
+/// The placement's rotation matrix and translation.
+pub(crate) fn placement_frame(p: &Placement) -> (Mat3, Vec3) {
+    (
+        Mat3::from_quat(p.transform.quat().normalize()),
+        Vec3::from_array(p.transform.translation),
+    )
+}
+
+/// Surfel `i` placed by (R_T, t_T) (eq. state-assembly: centre and orientation only).
+#[inline]
+pub(crate) fn world_surfel(s: &Surfels, i: usize, rot: Mat3, trans: Vec3) -> WorldSurfel {
+    let q = Quat::from_array(s.rotation[i]).normalize();
+    WorldSurfel {
+        p: rot * Vec3::from_array(s.position[i]) + trans,
+        axes: rot * Mat3::from_quat(q),
+        scale: s.scale[i],
+        opacity: s.opacity[i],
+    }
+}
+
+/// The normal turned to face the camera (2DGS flips it when n · (μ − o) > 0).
+#[inline]
+pub(crate) fn facing_sign(n: Vec3, a: Vec3) -> f32 {
+    if n.dot(a) > 0.0 {
+        -1.0
+    } else {
+        1.0
+    }
+}
+
+/// A surfel as the tile loops read it: two cache lines, fetched ahead with [`prefetch`].
+///
+/// With `w_u = t_u / s_u`, `w_v = t_v / s_v` and the pixel ray `d(u, v)`, the hit of
+/// eq. gaussian-response is `t = (a·n) / (d·n)`, `ξ_u = t (d·w_u) − a·w_u`, `ξ_v` alike
+/// (`a = μ − o`); the three dot products with `d` are affine in (u, v) with coefficients
+/// `hu`, `hv`, `hn` = (d0·w, du·w, dv·w).
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+pub(crate) struct Splat {
+    pub hu: [f32; 3],
+    pub hv: [f32; 3],
+    pub hn: [f32; 3],
+    /// a·w_u, a·w_v, a·n.
+    pub au: f32,
+    pub av: f32,
+    pub an: f32,
+    /// Projected centre, pixels.
+    pub c: [f32; 2],
+    /// Centre depth, the sort key.
+    pub zc: f32,
+    pub opacity: f32,
+    /// Largest ρ that can pass both the support and the opacity threshold:
+    /// min(CUTOFF², 2 ln(α / MIN_ALPHA) + slack); the exact tests in [`hit`] decide.
+    pub rho_max: f32,
+    /// Colour after the clamp at 0.
+    pub color: [f32; 3],
+    /// Unit normal facing the camera.
+    pub normal: [f32; 3],
+    /// Pixel rectangle [x0, x1) × [y0, y1) that can be hit, never empty.
+    pub rect: [u32; 4],
+}
+
+/// Asks for a splat's two cache lines ahead of use. A tile visits its splats in depth order with
+/// irregular gaps in memory, which the hardware prefetcher cannot follow, and the hit loops were
+/// measured to spend a fifth of their time waiting for the first load of each splat.
+#[inline(always)]
+pub(crate) fn prefetch(splats: &[Splat], k: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(s) = splats.get(k) {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let p = s as *const Splat as *const i8;
+        // SAFETY: prefetching is a hint that never faults, and `p` points into a live slice.
+        unsafe {
+            _mm_prefetch(p, _MM_HINT_T0);
+            _mm_prefetch(p.add(64), _MM_HINT_T0);
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (splats, k);
+}
+
+/// What one pixel sees of one surfel, with the intermediates the backward pass needs.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Hit {
+    pub alpha: f32,
+    /// Ĝ = exp(−½ ρ).
+    pub g: f32,
+    /// opacity · Ĝ exceeded MAX_OPACITY: α does not depend on the parameters.
+    pub clamped: bool,
+    /// Planar depth of the hit.
+    pub z: f32,
+    /// ρ came from the plane (ρ_3d ≤ ρ_2d), not from the low-pass filter.
+    pub plane: bool,
+    pub t: f32,
+    /// d·n, d·w_u, d·w_v.
+    pub den: f32,
+    pub du: f32,
+    pub dv: f32,
+    pub xu: f32,
+    pub xv: f32,
+    /// c − p, pixels.
+    pub dx: f32,
+    pub dy: f32,
+}
+
+/// The hit of the ray through pixel coordinates (u, v) (eq. gaussian-response with 2DGS's
+/// low-pass filter), or `None` if it is dropped. Forward and backward call this same function,
+/// so they agree bit for bit on which hits exist. A ray in the surfel's plane gives t = ±∞ or
+/// NaN, ρ_3d = ∞ or NaN, and the comparison below then takes the filter's ρ_2d.
+#[inline(always)]
+pub(crate) fn hit(s: &Splat, u: f32, v: f32) -> Option<Hit> {
+    let den = s.hn[0] + s.hn[1] * u + s.hn[2] * v;
+    let du = s.hu[0] + s.hu[1] * u + s.hu[2] * v;
+    let dv = s.hv[0] + s.hv[1] * u + s.hv[2] * v;
+    let t = s.an / den;
+    let xu = t * du - s.au;
+    let xv = t * dv - s.av;
+    let rho_3d = xu * xu + xv * xv;
+    let dx = s.c[0] - u;
+    let dy = s.c[1] - v;
+    let rho_2d = FILTER_INV_VARIANCE * (dx * dx + dy * dy);
+    let plane = rho_3d <= rho_2d;
+    let (rho, z) = if plane { (rho_3d, t) } else { (rho_2d, s.zc) };
+    if !(rho <= s.rho_max && z >= NEAR) {
+        return None;
+    }
+    let g = (-0.5 * rho).exp();
+    let raw = s.opacity * g;
+    let alpha = raw.min(MAX_OPACITY);
+    if alpha < MIN_ALPHA {
+        return None;
+    }
+    Some(Hit {
+        alpha,
+        g,
+        clamped: raw > MAX_OPACITY,
+        z,
+        plane,
+        t,
+        den,
+        du,
+        dv,
+        xu,
+        xv,
+        dx,
+        dy,
+    })
+}
+
+/// Slack on the opacity bound of ρ so that f32 rounding never lets the prefilter drop a hit the
+/// exact tests would keep.
+const RHO_SLACK: f32 = 1e-3;
+/// Margin of a pixel rectangle, pixels: the rectangle is computed in f32 too.
+const RECT_MARGIN: f32 = 0.01;
+
+/// The visible surfels, sorted front to back by centre depth (ties by global index), as 2DGS
+/// sorts each tile; the tile lists then point into this array in increasing order, so the tile
+/// loops walk memory forwards instead of jumping around a global array.
+pub(crate) struct Prepared {
+    pub splats: Vec<Splat>,
+    /// Sorted index of each global surfel, `CULLED` if it is not drawn.
+    pub sorted_of: Vec<u32>,
+}
+
+pub(crate) const CULLED: u32 = u32::MAX;
+
+/// Projects every surfel of every placement (global index = component offset + index).
+pub(crate) fn prepare(view: &View, components: &[Placement], offsets: &[usize]) -> Prepared {
+    let total = offsets[components.len()];
+    if view.width == 0 || view.height == 0 {
+        return Prepared {
+            splats: Vec::new(),
+            sorted_of: vec![CULLED; total],
+        };
+    }
+    // Pass 1, in input order (the inputs are read sequentially): cull, and build what survives
+    // (a culled surfel is marked by a NaN depth).
+    let frames: Vec<_> = components.iter().map(placement_frame).collect();
+    let global: Vec<Splat> = (0..total)
+        .into_par_iter()
+        .with_min_len(512)
+        .map(|g| {
+            let c = offsets.partition_point(|&o| o <= g) - 1;
+            let (pl, i) = (&components[c], g - offsets[c]);
+            let (rot, trans) = frames[c];
+            let w = world_surfel(pl.surfels, i, rot, trans);
+            match footprint(view, &w) {
+                Some((zc, rect)) => {
+                    let stride = pl.surfels.sh_stride();
+                    let sh = &pl.surfels.sh[i * stride..(i + 1) * stride];
+                    build(view, &w, sh, zc, rect)
+                }
+                None => Splat {
+                    zc: f32::NAN,
+                    ..Splat::default()
+                },
+            }
+        })
+        .collect();
+    // Centre depths are ≥ NEAR > 0, so their bit patterns sort like the numbers.
+    let mut keys: Vec<u64> = global
+        .par_iter()
+        .enumerate()
+        .with_min_len(4096)
+        .filter(|(_, s)| !s.zc.is_nan())
+        .map(|(g, s)| ((s.zc.to_bits() as u64) << 32) | g as u64)
+        .collect();
+    keys.par_sort_unstable();
+    // Pass 2: gather in depth order.
+    let splats: Vec<Splat> = keys
+        .par_iter()
+        .with_min_len(4096)
+        .map(|&key| global[key as u32 as usize])
+        .collect();
+    let mut sorted_of = vec![CULLED; total];
+    for (k, key) in keys.iter().enumerate() {
+        sorted_of[*key as u32 as usize] = k as u32;
+    }
+    Prepared { splats, sorted_of }
+}
+
+fn finite3(v: Vec3) -> bool {
+    v.is_finite()
+}
+
+/// Largest ρ a hit can have (see [`Splat::rho_max`]).
+#[inline]
+fn rho_max(opacity: f32) -> f32 {
+    (CUTOFF * CUTOFF).min(2.0 * (opacity / MIN_ALPHA).ln() + RHO_SLACK)
+}
+
+/// Centre depth and pixel rectangle, or `None` if the surfel cannot be hit: centre nearer than
+/// NEAR (2DGS's frustum test), fainter than MIN_ALPHA (α ≤ opacity), degenerate or non-finite,
+/// or off screen.
+fn footprint(view: &View, w: &WorldSurfel) -> Option<(f32, [u32; 4])> {
+    let a = w.p - view.o;
+    let zc = a.dot(view.fwd);
+    let [su, sv] = w.scale;
+    if !(zc >= NEAR
+        && w.opacity >= MIN_ALPHA
+        && su > 0.0
+        && sv > 0.0
+        && finite3(a)
+        && w.axes.is_finite()
+        && su.is_finite()
+        && sv.is_finite())
+    {
+        return None;
+    }
+    let c = view.project(a);
+    let rect = pixel_rect(
+        view,
+        w.p,
+        w.axes.x_axis * su,
+        w.axes.y_axis * sv,
+        rho_max(w.opacity),
+        c,
+    )?;
+    Some((zc, rect))
+}
+
+fn build(view: &View, w: &WorldSurfel, sh_coeffs: &[[f32; 3]], zc: f32, rect: [u32; 4]) -> Splat {
+    let a = w.p - view.o;
+    let (tu, tv, n) = (w.axes.x_axis, w.axes.y_axis, w.axes.z_axis);
+    let [su, sv] = w.scale;
+    let wu = tu / su;
+    let wv = tv / sv;
+    let coeffs = |x: Vec3| [view.d0.dot(x), view.du.dot(x), view.dv.dot(x)];
+    let color = splat_color(view.o, w.p, sh_coeffs)
+        .0
+        .map(|x| x.max(0.0) as f32);
+    let normal = n * facing_sign(n, a);
+    Splat {
+        hu: coeffs(wu),
+        hv: coeffs(wv),
+        hn: coeffs(n),
+        au: a.dot(wu),
+        av: a.dot(wv),
+        an: a.dot(n),
+        c: view.project(a),
+        zc,
+        opacity: w.opacity,
+        rho_max: rho_max(w.opacity),
+        color,
+        normal: normal.to_array(),
+        rect,
+    }
+}
+
+/// Unclamped SH colour (f64), the unit view direction and |μ − o|.
+pub(crate) fn splat_color(o: Vec3, p: Vec3, coeffs: &[[f32; 3]]) -> ([f64; 3], [f64; 3], f64) {
+    let mut f = [[0.0f64; 3]; 16];
+    for (dst, src) in f.iter_mut().zip(coeffs) {
+        *dst = src.map(f64::from);
+    }
+    let (d, len) = sh::view_dir(o.to_array().map(f64::from), p.to_array().map(f64::from));
+    (sh::eval(d, &f[..coeffs.len().min(16)]), d, len)
+}
+
+/// The pixels whose centres can see the surfel: the union of the projected support square
+/// (`|ξ_u|, |ξ_v| ≤ √ρ_max`, clipped to depth ≥ NEAR since nearer hits are dropped) and the
+/// low-pass filter's disc `2 |p − c|² ≤ ρ_max`. The square's projection contains the projected
+/// disc because the clipped square is convex and lies in front of the camera.
+fn pixel_rect(
+    view: &View,
+    p: Vec3,
+    eu: Vec3,
+    ev: Vec3,
+    rho_max: f32,
+    c: [f32; 2],
+) -> Option<[u32; 4]> {
+    let k = rho_max.sqrt();
+    let (eu, ev) = (eu * k, ev * k);
+    let corners = [p + eu + ev, p - eu + ev, p - eu - ev, p + eu - ev].map(|x| x - view.o);
+    let r = (rho_max / FILTER_INV_VARIANCE).sqrt();
+    let mut lo = [c[0] - r, c[1] - r];
+    let mut hi = [c[0] + r, c[1] + r];
+    let mut include = |q: [f32; 2]| {
+        for k in 0..2 {
+            lo[k] = lo[k].min(q[k]);
+            hi[k] = hi[k].max(q[k]);
+        }
+    };
+    for i in 0..4 {
+        let (a, b) = (corners[i], corners[(i + 1) % 4]);
+        let (za, zb) = (a.dot(view.fwd), b.dot(view.fwd));
+        if za >= NEAR {
+            include(view.project(a));
+        }
+        if (za >= NEAR) != (zb >= NEAR) {
+            let s = (NEAR - za) / (zb - za);
+            let q = a + s * (b - a);
+            // On the near plane up to rounding; keep the depth positive for the projection.
+            let q = q + view.fwd * (NEAR - q.dot(view.fwd)).max(0.0);
+            include(view.project(q));
+        }
+    }
+    if !(lo[0].is_finite() && lo[1].is_finite() && hi[0].is_finite() && hi[1].is_finite()) {
+        // A corner projected to infinity or NaN: fall back to the whole image rather than lose
+        // hits (only possible for degenerate inputs).
+        lo = [f32::MIN, f32::MIN];
+        hi = [f32::MAX, f32::MAX];
+    }
+    // Pixel x is seen iff its centre x + 0.5 lies in [lo, hi].
+    let (w, h) = (view.width as f32, view.height as f32);
+    let x0 = (lo[0] - 0.5 - RECT_MARGIN).ceil().clamp(0.0, w) as u32;
+    let x1 = ((hi[0] - 0.5 + RECT_MARGIN).floor() + 1.0).clamp(0.0, w) as u32;
+    let y0 = (lo[1] - 0.5 - RECT_MARGIN).ceil().clamp(0.0, h) as u32;
+    let y1 = ((hi[1] - 0.5 + RECT_MARGIN).floor() + 1.0).clamp(0.0, h) as u32;
+    (x0 < x1 && y0 < y1).then_some([x0, y0, x1, y1])
+}
+
+/// Depth-sorted tile lists, and for each splat where its entries are (for the backward
+/// reduction).
+pub(crate) struct Bins {
+    /// Tile `t`'s list is `list[tile_start[t]..tile_start[t + 1]]`.
+    pub tile_start: Vec<u32>,
+    /// Sorted splat indices, each tile's front to back (increasing).
+    pub list: Vec<u32>,
+    /// Splat `k`'s entries are `entry_of[splat_start[k]..splat_start[k + 1]]`.
+    pub splat_start: Vec<u32>,
+    /// Positions in `list`.
+    pub entry_of: Vec<u32>,
+}
+
+impl Bins {
+    pub fn tile_list(&self, tile: usize) -> &[u32] {
+        &self.list[self.tile_start[tile] as usize..self.tile_start[tile + 1] as usize]
+    }
+}
+
+#[inline]
+fn tile_rect(s: &Splat) -> [u32; 4] {
+    [
+        s.rect[0] / TILE,
+        s.rect[1] / TILE,
+        (s.rect[2] - 1) / TILE + 1,
+        (s.rect[3] - 1) / TILE + 1,
+    ]
+}
+
+/// Buckets the sorted splats into tiles; walking them in order keeps every list sorted.
+pub(crate) fn bin(view: &View, splats: &[Splat]) -> Bins {
+    let tiles = view.tiles();
+    let mut tile_count = vec![0u32; tiles];
+    let mut splat_start = vec![0u32; splats.len() + 1];
+    for (k, s) in splats.iter().enumerate() {
+        let [tx0, ty0, tx1, ty1] = tile_rect(s);
+        for ty in ty0..ty1 {
+            for tx in tx0..tx1 {
+                tile_count[(ty * view.tiles_x + tx) as usize] += 1;
+            }
+        }
+        splat_start[k + 1] = splat_start[k] + (tx1 - tx0) * (ty1 - ty0);
+    }
+    let mut tile_start = vec![0u32; tiles + 1];
+    for t in 0..tiles {
+        tile_start[t + 1] = tile_start[t] + tile_count[t];
+    }
+    let entries = tile_start[tiles] as usize;
+    let mut list = vec![0u32; entries];
+    let mut entry_of = vec![0u32; entries];
+    let mut cursor = tile_start.clone();
+    let mut j = 0;
+    for (k, s) in splats.iter().enumerate() {
+        let [tx0, ty0, tx1, ty1] = tile_rect(s);
+        for ty in ty0..ty1 {
+            for tx in tx0..tx1 {
+                let t = (ty * view.tiles_x + tx) as usize;
+                let pos = cursor[t];
+                cursor[t] += 1;
+                list[pos as usize] = k as u32;
+                entry_of[j] = pos;
+                j += 1;
+            }
+        }
+    }
+    Bins {
+        tile_start,
+        list,
+        splat_start,
+        entry_of,
+    }
+}

@@ -1,0 +1,227 @@
+//! View-dependent colour from spherical harmonics, exactly as 3DGS evaluates it (and as
+//! `docs/formats.md` stores it: KHR order, degree then coefficient, with a 0.5 DC bias):
+//! `c = max(Σ_k f_k Y_k(d) + 0.5, 0)` per channel, `d` the unit vector from the camera centre to
+//! the surfel centre. Evaluated once per surfel in f64 by the fast path and the reference alike.
+
+/// Real SH normalisation constants in 3DGS's basis and sign convention.
+const C0: f64 = 0.282_094_791_773_878_14;
+const C1: f64 = 0.488_602_511_902_919_9;
+const C2: [f64; 5] = [
+    1.092_548_430_592_079_2,
+    -1.092_548_430_592_079_2,
+    0.315_391_565_252_520_05,
+    -1.092_548_430_592_079_2,
+    0.546_274_215_296_039_6,
+];
+const C3: [f64; 7] = [
+    -0.590_043_589_926_643_5,
+    2.890_611_442_640_554,
+    -0.457_045_799_464_465_8,
+    0.373_176_332_590_115_4,
+    -0.457_045_799_464_465_8,
+    1.445_305_721_320_277,
+    -0.590_043_589_926_643_5,
+];
+
+/// The DC bias the files carry (formats.md: "0.5 DC bias").
+pub const DC_BIAS: f64 = 0.5;
+
+/// Basis values `Y_k(d)` for the `n ≤ 16` coefficients of a degree, and, if asked for, their
+/// gradients with respect to `d` (as a polynomial in x, y, z; the caller projects out the radial
+/// part).
+pub fn basis(d: [f64; 3], n: usize, y: &mut [f64; 16], dy: Option<&mut [[f64; 3]; 16]>) {
+    let [x, yv, z] = d;
+    let (xx, yy, zz) = (x * x, yv * yv, z * z);
+    y[0] = C0;
+    if n > 1 {
+        y[1] = -C1 * yv;
+        y[2] = C1 * z;
+        y[3] = -C1 * x;
+    }
+    if n > 4 {
+        y[4] = C2[0] * x * yv;
+        y[5] = C2[1] * yv * z;
+        y[6] = C2[2] * (2.0 * zz - xx - yy);
+        y[7] = C2[3] * x * z;
+        y[8] = C2[4] * (xx - yy);
+    }
+    if n > 9 {
+        y[9] = C3[0] * yv * (3.0 * xx - yy);
+        y[10] = C3[1] * x * yv * z;
+        y[11] = C3[2] * yv * (4.0 * zz - xx - yy);
+        y[12] = C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
+        y[13] = C3[4] * x * (4.0 * zz - xx - yy);
+        y[14] = C3[5] * z * (xx - yy);
+        y[15] = C3[6] * x * (xx - 3.0 * yy);
+    }
+    let Some(dy) = dy else { return };
+    dy[0] = [0.0; 3];
+    if n > 1 {
+        dy[1] = [0.0, -C1, 0.0];
+        dy[2] = [0.0, 0.0, C1];
+        dy[3] = [-C1, 0.0, 0.0];
+    }
+    if n > 4 {
+        dy[4] = [C2[0] * yv, C2[0] * x, 0.0];
+        dy[5] = [0.0, C2[1] * z, C2[1] * yv];
+        dy[6] = [-2.0 * C2[2] * x, -2.0 * C2[2] * yv, 4.0 * C2[2] * z];
+        dy[7] = [C2[3] * z, 0.0, C2[3] * x];
+        dy[8] = [2.0 * C2[4] * x, -2.0 * C2[4] * yv, 0.0];
+    }
+    if n > 9 {
+        dy[9] = [C3[0] * 6.0 * x * yv, C3[0] * 3.0 * (xx - yy), 0.0];
+        dy[10] = [C3[1] * yv * z, C3[1] * x * z, C3[1] * x * yv];
+        dy[11] = [
+            -2.0 * C3[2] * x * yv,
+            C3[2] * (4.0 * zz - xx - 3.0 * yy),
+            8.0 * C3[2] * yv * z,
+        ];
+        dy[12] = [
+            -6.0 * C3[3] * x * z,
+            -6.0 * C3[3] * yv * z,
+            C3[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy),
+        ];
+        dy[13] = [
+            C3[4] * (4.0 * zz - 3.0 * xx - yy),
+            -2.0 * C3[4] * x * yv,
+            8.0 * C3[4] * x * z,
+        ];
+        dy[14] = [
+            2.0 * C3[5] * x * z,
+            -2.0 * C3[5] * yv * z,
+            C3[5] * (xx - yy),
+        ];
+        dy[15] = [C3[6] * 3.0 * (xx - yy), -6.0 * C3[6] * x * yv, 0.0];
+    }
+}
+
+/// Unit view direction from the camera centre `o` to the surfel centre `p`, and |p − o|.
+pub fn view_dir(o: [f64; 3], p: [f64; 3]) -> ([f64; 3], f64) {
+    let a = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
+    let len = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+    if len > 0.0 {
+        ([a[0] / len, a[1] / len, a[2] / len], len)
+    } else {
+        ([0.0, 0.0, 1.0], 0.0)
+    }
+}
+
+/// Colour before the clamp, `Σ_k f_k Y_k(d) + 0.5`, for SH triples `f` (any degree ≤ 3).
+pub fn eval(d: [f64; 3], f: &[[f64; 3]]) -> [f64; 3] {
+    let mut y = [0.0; 16];
+    basis(d, f.len(), &mut y, None);
+    let mut c = [DC_BIAS; 3];
+    for (fk, yk) in f.iter().zip(&y) {
+        for ch in 0..3 {
+            c[ch] += fk[ch] * yk;
+        }
+    }
+    c
+}
+
+/// Backward of [`eval`] followed by the clamp at 0: given the unclamped colour `raw` and dL/dc,
+/// writes dL/df_k into `d_f` and returns dL/d(p − o) through the view direction (`len` = |p − o|).
+pub fn backward(
+    d: [f64; 3],
+    len: f64,
+    f: &[[f64; 3]],
+    raw: [f64; 3],
+    d_color: [f64; 3],
+    d_f: &mut [[f32; 3]],
+) -> [f64; 3] {
+    let mut y = [0.0; 16];
+    let mut dy = [[0.0; 3]; 16];
+    basis(d, f.len(), &mut y, Some(&mut dy));
+    // 3DGS: a clamped channel passes no gradient.
+    let g = [0, 1, 2].map(|ch| if raw[ch] < 0.0 { 0.0 } else { d_color[ch] });
+    let mut g_dir = [0.0; 3];
+    for k in 0..f.len() {
+        d_f[k] = [
+            (g[0] * y[k]) as f32,
+            (g[1] * y[k]) as f32,
+            (g[2] * y[k]) as f32,
+        ];
+        let gf = g[0] * f[k][0] + g[1] * f[k][1] + g[2] * f[k][2];
+        for j in 0..3 {
+            g_dir[j] += gf * dy[k][j];
+        }
+    }
+    if len == 0.0 {
+        return [0.0; 3];
+    }
+    // d = a / |a|: dd/da = (I − d dᵀ) / |a|.
+    let radial = g_dir[0] * d[0] + g_dir[1] * d[1] + g_dir[2] * d[2];
+    [0, 1, 2].map(|j| (g_dir[j] - radial * d[j]) / len)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on the unit sphere, a Fibonacci lattice: nearly equal areas 4π / n.
+    fn fibonacci(n: usize) -> Vec<[f64; 3]> {
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let phi = golden * i as f64;
+                [r * phi.cos(), r * phi.sin(), z]
+            })
+            .collect()
+    }
+
+    /// A wrong constant or a copy-paste slip in a polynomial breaks orthonormality by far more
+    /// than the lattice's quadrature error (~1e-5 at 40k points for degree ≤ 6 products).
+    #[test]
+    fn basis_is_orthonormal() {
+        let pts = fibonacci(40_000);
+        let mut gram = [[0.0f64; 16]; 16];
+        let mut y = [0.0; 16];
+        for p in &pts {
+            basis(*p, 16, &mut y, None);
+            for i in 0..16 {
+                for j in 0..16 {
+                    gram[i][j] += y[i] * y[j];
+                }
+            }
+        }
+        let w = 4.0 * std::f64::consts::PI / pts.len() as f64;
+        for (i, row) in gram.iter().enumerate() {
+            for (j, g) in row.iter().enumerate() {
+                let expect = if i == j { 1.0 } else { 0.0 };
+                assert!((g * w - expect).abs() < 1e-3, "<Y{i}, Y{j}> = {}", g * w);
+            }
+        }
+    }
+
+    /// The 3DGS sign convention of degree 1 (Y1 = −C1 y, Y2 = C1 z, Y3 = −C1 x) and that the
+    /// hand-written gradients match central differences of the polynomials.
+    #[test]
+    fn basis_signs_and_gradients() {
+        let d = [0.3, -0.5, 0.81];
+        let mut y = [0.0; 16];
+        let mut dy = [[0.0; 3]; 16];
+        basis(d, 16, &mut y, Some(&mut dy));
+        assert!((y[1] + C1 * d[1]).abs() < 1e-15);
+        assert!((y[2] - C1 * d[2]).abs() < 1e-15);
+        assert!((y[3] + C1 * d[0]).abs() < 1e-15);
+        let h = 1e-6;
+        for j in 0..3 {
+            let (mut a, mut b) = (d, d);
+            a[j] += h;
+            b[j] -= h;
+            let (mut ya, mut yb) = ([0.0; 16], [0.0; 16]);
+            basis(a, 16, &mut ya, None);
+            basis(b, 16, &mut yb, None);
+            for k in 0..16 {
+                let fd = (ya[k] - yb[k]) / (2.0 * h);
+                assert!(
+                    (fd - dy[k][j]).abs() < 1e-8,
+                    "dY{k}/dx{j}: {fd} vs {}",
+                    dy[k][j]
+                );
+            }
+        }
+    }
+}
