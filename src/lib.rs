@@ -4,7 +4,9 @@
 
 pub mod cli;
 pub mod error;
+pub mod eval;
 pub mod io;
+pub mod optim;
 pub mod scene;
 pub mod shade;
 pub mod splat;

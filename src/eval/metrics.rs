@@ -1,0 +1,104 @@
+//! Image and depth metrics. PSNR uses peak 1 on images clamped to [0, 1] (scene-linear, or
+//! sRGB-encoded after clamping); SSIM is exactly the training definition in
+//! [`crate::optim::ssim`] (11×11 Gaussian window, σ = 1.5, zero-padded "same" statistics).
+
+use rayon::prelude::*;
+
+/// The sRGB transfer function (IEC 61966-2-1) of a linear value clamped to [0, 1].
+pub fn srgb_encode(x: f32) -> f32 {
+    // In f64 so that 1 encodes to exactly 1.
+    let x = x.clamp(0.0, 1.0) as f64;
+    (if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }) as f32
+}
+
+fn check(a: &[[f32; 3]], b: &[[f32; 3]]) {
+    assert!(!a.is_empty(), "metric of an empty image");
+    assert_eq!(a.len(), b.len(), "images differ in size");
+}
+
+fn psnr_mapped(a: &[[f32; 3]], b: &[[f32; 3]], f: impl Fn(f32) -> f32 + Sync) -> f64 {
+    check(a, b);
+    let se: f64 = a
+        .par_iter()
+        .zip(b)
+        .map(|(p, q)| {
+            (0..3)
+                .map(|c| ((f(p[c]) - f(q[c])) as f64).powi(2))
+                .sum::<f64>()
+        })
+        .sum();
+    let mse = se / (3 * a.len()) as f64;
+    // Identical images give +inf, as 10 log10(1 / 0) should.
+    -10.0 * mse.log10()
+}
+
+/// PSNR in dB of two scene-linear images clamped to [0, 1], peak 1, MSE over all channels.
+pub fn psnr(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    psnr_mapped(a, b, |x| x.clamp(0.0, 1.0))
+}
+
+/// PSNR in dB after clamping to [0, 1] and sRGB encoding (the usual "display" PSNR).
+pub fn psnr_srgb(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    psnr_mapped(a, b, srgb_encode)
+}
+
+/// Mean SSIM of the images as given (see [`crate::optim::ssim`]).
+pub fn ssim(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 {
+    crate::optim::ssim::ssim(a, b, width, height) as f64
+}
+
+/// Mean SSIM after clamping to [0, 1] and sRGB encoding.
+pub fn ssim_srgb(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 {
+    check(a, b);
+    let enc = |img: &[[f32; 3]]| -> Vec<[f32; 3]> {
+        img.par_iter().map(|p| p.map(srgb_encode)).collect()
+    };
+    ssim(&enc(a), &enc(b), width, height)
+}
+
+/// Absolute depth error over the pixels where the reference has depth (> 0 and finite).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthError {
+    /// Mean |rendered − reference| in metres (NaN when `count` is 0).
+    pub mean: f64,
+    /// Median |rendered − reference| in metres (mean of the middle two for an even count).
+    pub median: f64,
+    /// Number of valid pixels.
+    pub count: usize,
+}
+
+/// Mean and median absolute depth error on valid pixels; a rendered 0 (no hit) where the
+/// reference has depth counts with its full error.
+pub fn depth_error(rendered: &[f32], reference: &[f32]) -> DepthError {
+    assert_eq!(rendered.len(), reference.len(), "depth maps differ in size");
+    let mut err: Vec<f64> = rendered
+        .par_iter()
+        .zip(reference)
+        .filter(|(_, r)| **r > 0.0 && r.is_finite())
+        .map(|(d, r)| (*d as f64 - *r as f64).abs())
+        .collect();
+    let count = err.len();
+    if count == 0 {
+        return DepthError {
+            mean: f64::NAN,
+            median: f64::NAN,
+            count,
+        };
+    }
+    let mean = err.iter().sum::<f64>() / count as f64;
+    err.par_sort_unstable_by(f64::total_cmp);
+    let median = if count % 2 == 1 {
+        err[count / 2]
+    } else {
+        0.5 * (err[count / 2 - 1] + err[count / 2])
+    };
+    DepthError {
+        mean,
+        median,
+        count,
+    }
+}
