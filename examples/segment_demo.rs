@@ -1,7 +1,7 @@
 //! Measures the background/object graph cut on a real dataset:
 //!
 //! ```text
-//! cargo run --release --example segment_demo -- path/to/dataset [state index, default: first train state]
+//! cargo run --release --example segment_demo -- DATASET [STATE [DEPTH_TOLERANCE [SMOOTHNESS]]]
 //! ```
 //!
 //! Surfels come from the back-projected depth of every view of the state (one per pixel with a
@@ -10,7 +10,10 @@
 
 use lightfuse::io::dataset::Dataset;
 use lightfuse::stages::reconstruct::completion::seed_points;
-use lightfuse::stages::reconstruct::segment::{segment, SegmentParams, SurfelPoints};
+use lightfuse::stages::reconstruct::segment::{
+    neighbour_pairs, potts_weights, project, segment, unary_costs, Potts, SegmentParams,
+    SurfelPoints,
+};
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -19,9 +22,9 @@ const GRID: f32 = 0.01;
 
 fn main() -> anyhow::Result<()> {
     let mut args = std::env::args().skip(1);
-    let path = args
-        .next()
-        .ok_or_else(|| anyhow::anyhow!("usage: segment_demo DATASET [STATE]"))?;
+    let path = args.next().ok_or_else(|| {
+        anyhow::anyhow!("usage: segment_demo DATASET [STATE [DEPTH_TOLERANCE [SMOOTHNESS]]]")
+    })?;
     let data = Dataset::read(std::path::Path::new(&path))?;
     let k = match args.next() {
         Some(s) => s.parse()?,
@@ -39,6 +42,7 @@ fn main() -> anyhow::Result<()> {
     let t1 = Instant::now();
     let mut points = SurfelPoints::default();
     let mut truth = Vec::new();
+    let mut source = Vec::new();
     let mut cells: HashMap<[i32; 3], ()> = HashMap::new();
     let mut raw = 0;
     for o in &observations {
@@ -52,12 +56,20 @@ fn main() -> anyhow::Result<()> {
                 points.normal.push(seeds.normal[i]);
                 points.color.push(seeds.rgb[i]);
                 truth.push(seeds.mask[i]);
+                source.push((o.view, seeds.pixel[i] as usize));
             }
         }
     }
     let t_points = t1.elapsed();
 
-    let params = SegmentParams::default();
+    // Optional overrides, to measure the sensitivity: depth tolerance, then smoothness λ.
+    let mut params = SegmentParams::default();
+    if let Some(t) = args.next() {
+        params.depth_tolerance = t.parse()?;
+    }
+    if let Some(l) = args.next() {
+        params.smoothness = l.parse()?;
+    }
     let t2 = Instant::now();
     let seg = segment(&points, &observations, &params)?;
     let t_seg = t2.elapsed();
@@ -69,6 +81,10 @@ fn main() -> anyhow::Result<()> {
         observations.len(),
         points.len(),
         GRID * 100.0
+    );
+    println!(
+        "depth tolerance {}, smoothness {}",
+        params.depth_tolerance, params.smoothness
     );
     println!(
         "graph: {} edges; energy {:.1} (argmax of votes) -> {:.1} after {} sweeps",
@@ -86,17 +102,53 @@ fn main() -> anyhow::Result<()> {
             names[o.id as usize] = o.name.clone();
         }
     }
-    println!("label        surfels  graph cut  argmax");
+    // A harder variant: every surfel surely votes in the view it came from (its own pixel at its
+    // own depth). Withdraw that vote and rerun the same energy on the other views' votes only.
+    let mut votes = seg.votes.clone();
+    for (i, &(v, pix)) in source.iter().enumerate() {
+        let o = &observations[v];
+        if let Some((p, d)) = project(&o.camera, points.position[i]) {
+            let observed = o.depth[p];
+            if p == pix && (d - observed).abs() <= params.depth_tolerance * observed {
+                votes[i * seg.n_labels + o.mask[p] as usize] -= 1;
+            }
+        }
+    }
+    let potts = Potts {
+        n_labels: seg.n_labels,
+        unary: unary_costs(&votes, seg.n_labels, params.vote_prior, params.share_floor),
+        edges: potts_weights(
+            &points,
+            &neighbour_pairs(&points.position, params.neighbours, params.radius),
+            &params,
+        ),
+    };
+    let loo_init = potts.unary_argmin();
+    let (loo, _) = potts.alpha_expansion(loo_init.clone(), params.max_sweeps);
+    let loo_unseen = votes
+        .chunks(seg.n_labels)
+        .filter(|r| r.iter().all(|&c| c == 0))
+        .count();
+    println!("without the own-view vote, surfels seen by no other view: {loo_unseen}");
+    println!("label        surfels  graph cut  argmax | without own view: graph cut  argmax");
     for (l, name) in names.iter().enumerate() {
         let on = (0..truth.len()).filter(|&i| truth[i] as usize == l);
         let total = on.clone().count();
         let cut = on.clone().filter(|&i| seg.labels[i] as usize == l).count();
-        let arg = on.filter(|&i| seg.initial_labels[i] as usize == l).count();
+        let arg = on
+            .clone()
+            .filter(|&i| seg.initial_labels[i] as usize == l)
+            .count();
+        let loo_cut = on.clone().filter(|&i| loo[i] as usize == l).count();
+        let loo_arg = on.filter(|&i| loo_init[i] as usize == l).count();
+        let pct = |c: usize| 100.0 * c as f64 / total as f64;
         if total > 0 {
             println!(
-                "{l} {name:<10} {total:>7}  {:>8.2}%  {:>6.2}%",
-                100.0 * cut as f64 / total as f64,
-                100.0 * arg as f64 / total as f64
+                "{l} {name:<10} {total:>7}  {:>8.2}%  {:>6.2}% |                   {:>8.2}%  {:>6.2}%",
+                pct(cut),
+                pct(arg),
+                pct(loo_cut),
+                pct(loo_arg)
             );
         }
     }

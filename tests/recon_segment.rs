@@ -86,6 +86,22 @@ fn max_flow_equals_brute_force_min_cut() {
             (c - best).abs() <= 1e-9 * best.max(1.0),
             "trial {trial}: reported cut {c} vs min cut {best}"
         );
+        // The other extreme minimum cut: everything that cannot reach t stays with s.
+        let sink = g.sink_side(t);
+        assert!(
+            sink[t] && !sink[s],
+            "trial {trial}: cut must separate s and t"
+        );
+        let largest_source: Vec<bool> = sink.iter().map(|&x| !x).collect();
+        let c = cut_value(&edges, &largest_source);
+        assert!(
+            (c - best).abs() <= 1e-9 * best.max(1.0),
+            "trial {trial}: sink-side cut {c} vs min cut {best}"
+        );
+        assert!(
+            side.iter().zip(&largest_source).all(|(&a, &b)| !a || b),
+            "trial {trial}: the reachable source set lies inside every source side"
+        );
     }
 }
 
@@ -215,6 +231,15 @@ fn expansion_move_is_the_best_binary_move() {
                 "move changed a label to neither"
             );
         }
+        // Ties keep the current label: a node touched by nothing never moves.
+        let mut lonely = potts.clone();
+        lonely.unary.extend([0.5; 4]);
+        let mut with_lonely = labels.clone();
+        with_lonely.push(if alpha == 0 { 1 } else { 0 });
+        let mut g2 = MaxFlow::new(n + 3);
+        let mut scratch2 = vec![0.0; n + 1];
+        let mv2 = lonely.expansion_move(&with_lonely, alpha, &mut g2, &mut scratch2);
+        assert_eq!(mv2[n], with_lonely[n], "an indifferent node kept its label");
         let best = (0u32..1 << n)
             .map(|bits| {
                 let cand: Vec<u8> = (0..n)

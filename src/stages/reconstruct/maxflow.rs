@@ -125,6 +125,26 @@ impl MaxFlow {
         seen
     }
 
+    /// After `solve`: true for the nodes that can still reach `t` through unsaturated residual
+    /// edges: the sink side of the minimum cut with the *largest* source side, so nodes whose
+    /// side does not matter to the cut value stay with the source.
+    pub fn sink_side(&self, t: usize) -> Vec<bool> {
+        let mut seen = vec![false; self.n];
+        let mut queue = VecDeque::from([t]);
+        seen[t] = true;
+        while let Some(v) = queue.pop_front() {
+            // Edge e leaves v, so its partner e ^ 1 runs u -> v.
+            for &e in &self.adj[self.start[v] as usize..self.start[v + 1] as usize] {
+                let u = self.to[e as usize] as usize;
+                if !seen[u] && self.residual[e as usize ^ 1] > self.eps {
+                    seen[u] = true;
+                    queue.push_back(u);
+                }
+            }
+        }
+        seen
+    }
+
     fn build_adjacency(&mut self) {
         self.start.clear();
         self.start.resize(self.n + 1, 0);
