@@ -10,6 +10,7 @@ pub mod optim;
 pub mod scene;
 pub mod shade;
 pub mod splat;
+pub mod stages;
 pub mod trace;
 
 pub use error::{Error, Result};
