@@ -84,6 +84,11 @@ pub struct RenderArgs {
     /// per camera, NAME the frame's file stem.
     #[arg(long)]
     pub out: PathBuf,
+    /// Draw the baked splatting appearance (SH) by 2DGS splatting instead of path tracing:
+    /// the reconstruction's own view, and the baked-appearance baseline after a rearrangement.
+    /// Writes R,G,B (over black), A, Z, N; ignores the environment and --spp.
+    #[arg(long)]
+    pub baked: bool,
 }
 
 #[derive(clap::Args, Debug)]

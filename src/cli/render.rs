@@ -49,6 +49,9 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
     }
     let scene = crate::io::read_scene(&a.scene)?;
     let state = select_state(&scene, a)?;
+    if a.baked {
+        return render_baked(cli, a, &scene, &state);
+    }
     let (environment, rotation, env_source) = select_environment(&scene, &state, a)?;
     let views = select_views(a, &state.name)?;
 
@@ -321,6 +324,71 @@ fn select_views(a: &RenderArgs, state_name: &str) -> Result<Vec<View>> {
             }
         })
         .collect())
+}
+
+/// `render --baked`: the SH appearance splatted by 2DGS (eq. state-assembly for the placement).
+fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Result<()> {
+    let views = select_views(a, &state.name)?;
+    let started = Instant::now();
+    let placements: Vec<crate::splat::Placement> = scene
+        .components
+        .iter()
+        .zip(&state.transforms)
+        .map(|(c, t)| crate::splat::Placement {
+            surfels: &c.surfels,
+            transform: *t,
+        })
+        .collect();
+    let mut files = Vec::new();
+    for view in &views {
+        let img = crate::splat::forward(&placements, &view.camera).image;
+        let n = img.pixels();
+        let plane = |f: &dyn Fn(usize) -> f32| (0..n).map(f).collect::<Vec<f32>>();
+        let normal = |i: usize, k: usize| {
+            let v = glam::Vec3::from_array(img.normal[i]);
+            let l = v.length();
+            if l > 0.0 {
+                v[k] / l
+            } else {
+                0.0
+            }
+        };
+        let channels = vec![
+            ("R".to_string(), plane(&|i| img.color[i][0])),
+            ("G".to_string(), plane(&|i| img.color[i][1])),
+            ("B".to_string(), plane(&|i| img.color[i][2])),
+            ("A".to_string(), img.alpha.clone()),
+            ("Z".to_string(), img.depth.clone()),
+            ("N.X".to_string(), plane(&|i| normal(i, 0))),
+            ("N.Y".to_string(), plane(&|i| normal(i, 1))),
+            ("N.Z".to_string(), plane(&|i| normal(i, 2))),
+        ];
+        let image = Channels {
+            width: img.width as usize,
+            height: img.height as usize,
+            channels,
+        };
+        let exr = a.out.join(format!("{}.exr", view.name));
+        let png = a.out.join(format!("{}.png", view.name));
+        crate::io::exr::write_channels(&image, &exr)?;
+        write_png(&image, &png)?;
+        files.push(exr);
+        files.push(png);
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    if cli.json {
+        println!(
+            "{}",
+            serde_json::json!({"files": files, "frames": views.len(), "seconds": seconds, "state": state.name, "baked": true})
+        );
+    } else if !cli.quiet {
+        eprintln!(
+            "splatted {} views (baked appearance) into {} in {seconds:.2} s",
+            views.len(),
+            a.out.display()
+        );
+    }
+    Ok(())
 }
 
 /// Renders one camera: rayon over 16x16 tiles, each rendered into its own buffer.

@@ -3,3 +3,4 @@
 pub mod completion;
 pub mod maxflow;
 pub mod segment;
+pub mod train;

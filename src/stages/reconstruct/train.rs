@@ -1,0 +1,675 @@
+//! The stage-1 training loop (eq. reconstruction-objective): every training view of every
+//! training state, each state assembled from the shared background and the objects placed by
+//! their per-state transforms (eq. state-assembly), splatted by [`crate::splat`], compared with
+//! the capture, and every surfel parameter and every non-reference object pose updated by Adam.
+//!
+//! Parameters are kept raw, as 2DGS optimises them: centres, raw quaternions, log scales,
+//! logit opacities and SH coefficients; a pose update is an increment (δ, ω) applied on the left
+//! ([`crate::splat::perturb`]) and reset to zero, so Adam sees the pose's tangent space.
+//!
+//! Losses per view: L_RGB = 0.8 L1 + 0.2 D-SSIM on the capture's colour where its depth is
+//! valid (black elsewhere: the splats render over black and must leave the environment
+//! transparent), an opacity term |Â − 𝟙[D* > 0]| (eq. alpha-coverage, extended to push
+//! environment pixels to transparent), the scale regulariser (eq. scale-regularization), L1 to
+//! the reference depth, 1 − n̂·n* to the reference normals and, after a warm-up, 2DGS's depth-
+//! normal self-consistency (eqs. reconstruction-depth, reconstruction-normal).
+
+use crate::optim::{self, Adam, Schedule};
+use crate::scene::{Component, Rigid, Surfels};
+use crate::splat::{self, ImageGrad, Placement};
+use crate::io::dataset::Observation;
+use crate::scene::synthetic::SplitMix;
+use glam::{Quat, Vec3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Everything the loop's behaviour depends on; presets below.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    pub iterations: u32,
+    pub lr_position_init: f32,
+    pub lr_position_final: f32,
+    pub lr_rotation: f32,
+    pub lr_scale: f32,
+    pub lr_opacity: f32,
+    pub lr_sh_dc: f32,
+    pub lr_pose_translation: f32,
+    pub lr_pose_rotation: f32,
+    /// First iteration at which object poses move (the surfels settle first).
+    pub pose_from: u32,
+    pub lambda_dssim: f32,
+    pub lambda_alpha: f32,
+    pub lambda_scale: f32,
+    /// s_max of eq. scale-regularization, metres.
+    pub s_max: f32,
+    pub lambda_depth: f32,
+    pub lambda_normal: f32,
+    pub lambda_depth_normal: f32,
+    pub depth_normal_from: u32,
+    /// Densify and prune every `densify_every` iterations in [densify_from, densify_until).
+    pub densify_from: u32,
+    pub densify_until: u32,
+    pub densify_every: u32,
+    /// Mean ‖∂L/∂μ‖ (world, per view that saw the surfel) above which a surfel is cloned or split.
+    pub densify_grad: f32,
+    /// Surfels larger than this (metres, largest scale) are split rather than cloned.
+    pub split_scale: f32,
+    pub prune_opacity: f32,
+    /// Cap on the total number of surfels (densification stops adding beyond it).
+    pub max_surfels: usize,
+    pub seed: u64,
+}
+
+impl Settings {
+    /// Minutes on a 2-core laptop for the `demo` dataset (128×96, 3 states × 8 views).
+    pub fn fast() -> Settings {
+        Settings {
+            iterations: 1500,
+            lr_position_init: 1.6e-4 * 4.0,
+            lr_position_final: 1.6e-6 * 4.0,
+            lr_rotation: 1e-3,
+            lr_scale: 5e-3,
+            lr_opacity: 5e-2,
+            lr_sh_dc: 2.5e-3,
+            lr_pose_translation: 5e-4,
+            lr_pose_rotation: 1e-3,
+            pose_from: 300,
+            lambda_dssim: optim::LAMBDA_DSSIM,
+            lambda_alpha: 0.05,
+            lambda_scale: 1.0,
+            s_max: 0.05,
+            lambda_depth: 0.1,
+            lambda_normal: 0.05,
+            lambda_depth_normal: 0.05,
+            depth_normal_from: 500,
+            densify_from: 200,
+            densify_until: 1000,
+            densify_every: 100,
+            densify_grad: 2e-4,
+            split_scale: 0.02,
+            prune_opacity: 0.05,
+            max_surfels: 400_000,
+            seed: 0,
+        }
+    }
+
+    /// The paper's schedule (2DGS's 30k iterations and densification window).
+    pub fn paper() -> Settings {
+        Settings {
+            iterations: 30_000,
+            lr_position_init: 1.6e-4 * 4.0,
+            lr_position_final: 1.6e-6 * 4.0,
+            pose_from: 1000,
+            depth_normal_from: 7000,
+            densify_from: 500,
+            densify_until: 15_000,
+            densify_every: 100,
+            max_surfels: 3_000_000,
+            ..Settings::fast()
+        }
+    }
+}
+
+/// One component's raw parameters (struct of arrays, flat for the optimiser).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RawComponent {
+    pub name: String,
+    pub id: u32,
+    pub sh_degree: u8,
+    pub position: Vec<f32>,
+    pub rotation: Vec<f32>,
+    pub log_scale: Vec<f32>,
+    pub logit_opacity: Vec<f32>,
+    pub sh: Vec<f32>,
+    /// Carried through untouched (stage 3 optimises them).
+    pub base_color: Vec<[f32; 3]>,
+    pub metallic: Vec<f32>,
+    pub roughness: Vec<f32>,
+}
+
+const GROUPS: [(&str, usize); 5] = [
+    ("position", 3),
+    ("rotation", 4),
+    ("log_scale", 2),
+    ("logit_opacity", 1),
+    ("sh", 3),
+];
+
+fn logit(a: f32) -> f32 {
+    let a = a.clamp(1e-4, 1.0 - 1e-4);
+    (a / (1.0 - a)).ln()
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+impl RawComponent {
+    pub fn from_component(c: &Component) -> RawComponent {
+        let s = &c.surfels;
+        RawComponent {
+            name: c.name.clone(),
+            id: c.id,
+            sh_degree: s.sh_degree,
+            position: s.position.iter().flatten().copied().collect(),
+            rotation: s.rotation.iter().flatten().copied().collect(),
+            log_scale: s.scale.iter().flatten().map(|v| v.ln()).collect(),
+            logit_opacity: s.opacity.iter().map(|&a| logit(a)).collect(),
+            sh: s.sh.iter().flatten().copied().collect(),
+            base_color: s.base_color.clone(),
+            metallic: s.metallic.clone(),
+            roughness: s.roughness.clone(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.logit_opacity.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.logit_opacity.is_empty()
+    }
+
+    fn stride(&self) -> usize {
+        crate::scene::sh_coeffs(self.sh_degree)
+    }
+
+    fn group_mut(&mut self, g: usize) -> &mut Vec<f32> {
+        match g {
+            0 => &mut self.position,
+            1 => &mut self.rotation,
+            2 => &mut self.log_scale,
+            3 => &mut self.logit_opacity,
+            _ => &mut self.sh,
+        }
+    }
+
+    /// Group widths per surfel (the SH group is `3 × stride` wide).
+    fn width(&self, g: usize) -> usize {
+        if g == 4 {
+            3 * self.stride()
+        } else {
+            GROUPS[g].1
+        }
+    }
+
+    /// The activated surfels: normalised quaternions, exp scales, sigmoid opacities.
+    pub fn surfels(&self) -> Surfels {
+        let n = self.len();
+        let stride = self.stride();
+        let mut s = Surfels::with_sh_degree(self.sh_degree);
+        s.position = (0..n)
+            .map(|i| [0, 1, 2].map(|k| self.position[3 * i + k]))
+            .collect();
+        s.rotation = (0..n)
+            .map(|i| {
+                let q = glam::Vec4::from_slice(&self.rotation[4 * i..4 * i + 4]);
+                let len = q.length();
+                if len > 1e-12 && len.is_finite() {
+                    (q / len).to_array()
+                } else {
+                    [0.0, 0.0, 0.0, 1.0]
+                }
+            })
+            .collect();
+        s.scale = (0..n)
+            .map(|i| [0, 1].map(|k| self.log_scale[2 * i + k].exp()))
+            .collect();
+        s.opacity = self.logit_opacity.iter().map(|&x| sigmoid(x)).collect();
+        s.sh = (0..n * stride)
+            .map(|j| [0, 1, 2].map(|k| self.sh[3 * j + k]))
+            .collect();
+        s.base_color = self.base_color.clone();
+        s.metallic = self.metallic.clone();
+        s.roughness = self.roughness.clone();
+        s
+    }
+
+    /// Keeps surfels `keep` (in that order).
+    fn gather(&mut self, keep: &[usize]) {
+        for g in 0..GROUPS.len() {
+            let w = self.width(g);
+            let v = self.group_mut(g);
+            let out: Vec<f32> = keep
+                .iter()
+                .flat_map(|&i| v[i * w..(i + 1) * w].to_vec())
+                .collect();
+            *v = out;
+        }
+        self.base_color = keep.iter().map(|&i| self.base_color[i]).collect();
+        self.metallic = keep.iter().map(|&i| self.metallic[i]).collect();
+        self.roughness = keep.iter().map(|&i| self.roughness[i]).collect();
+    }
+
+    /// Appends copies of surfels `from`, then lets `edit` change the copies.
+    fn append_copies(&mut self, from: &[usize]) {
+        for g in 0..GROUPS.len() {
+            let w = self.width(g);
+            let v = self.group_mut(g);
+            for &i in from {
+                let row: Vec<f32> = v[i * w..(i + 1) * w].to_vec();
+                v.extend(row);
+            }
+        }
+        for &i in from {
+            self.base_color.push(self.base_color[i]);
+            self.metallic.push(self.metallic[i]);
+            self.roughness.push(self.roughness[i]);
+        }
+    }
+}
+
+/// The model being trained: components (0 = background) and object poses per training state.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Model {
+    pub components: Vec<RawComponent>,
+    /// `poses[j][o]`: object o (component o + 1) in training state j, relative to the reference
+    /// state (j = 0, always identity).
+    pub poses: Vec<Vec<Rigid>>,
+}
+
+impl Model {
+    pub fn surfel_count(&self) -> usize {
+        self.components.iter().map(RawComponent::len).sum()
+    }
+
+    /// The components as scene components.
+    pub fn scene_components(&self) -> Vec<Component> {
+        self.components
+            .iter()
+            .map(|c| Component {
+                name: c.name.clone(),
+                id: c.id,
+                surfels: c.surfels(),
+            })
+            .collect()
+    }
+
+    /// The placements of state `j` (eq. state-assembly) for already activated surfels.
+    pub fn placements<'a>(&self, surfels: &'a [Surfels], j: usize) -> Vec<Placement<'a>> {
+        surfels
+            .iter()
+            .enumerate()
+            .map(|(c, s)| Placement {
+                surfels: s,
+                transform: if c == 0 {
+                    Rigid::IDENTITY
+                } else {
+                    self.poses[j][c - 1]
+                },
+            })
+            .collect()
+    }
+}
+
+/// Optimiser state that a checkpoint carries besides the model.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Trainer {
+    pub settings: Settings,
+    pub model: Model,
+    pub adam: Adam,
+    pub iteration: u32,
+    rng: u64,
+    /// Per component, per surfel: Σ ‖∂L/∂μ‖ and the number of views that saw it.
+    grad_accum: Vec<Vec<f32>>,
+    grad_count: Vec<Vec<u32>>,
+    /// Pose increments being optimised (always zero between steps), `[j][o]` as 6 values.
+    pose_params: Vec<Vec<f32>>,
+}
+
+/// The losses of one iteration (weighted as they enter the objective).
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
+pub struct Losses {
+    pub rgb: f32,
+    pub alpha: f32,
+    pub scale: f32,
+    pub depth: f32,
+    pub normal: f32,
+    pub depth_normal: f32,
+    pub total: f32,
+}
+
+fn group_name(c: usize, g: usize) -> String {
+    format!("c{c}.{}", GROUPS[g].0)
+}
+
+impl Trainer {
+    pub fn new(settings: Settings, model: Model) -> Trainer {
+        let mut adam = Adam::new();
+        for (c, comp) in model.components.iter().enumerate() {
+            for (g, (name, _)) in GROUPS.iter().enumerate() {
+                let schedule = match *name {
+                    "position" => Schedule::Exponential {
+                        lr_init: settings.lr_position_init,
+                        lr_final: settings.lr_position_final,
+                        steps: settings.iterations as u64,
+                    },
+                    "rotation" => Schedule::Constant {
+                        lr: settings.lr_rotation,
+                    },
+                    "log_scale" => Schedule::Constant {
+                        lr: settings.lr_scale,
+                    },
+                    "logit_opacity" => Schedule::Constant {
+                        lr: settings.lr_opacity,
+                    },
+                    // One rate for every SH coefficient: the fast preset's surfels are degree 0.
+                    _ => Schedule::Constant {
+                        lr: settings.lr_sh_dc,
+                    },
+                };
+                let width = comp.width(g);
+                adam.add_group(&group_name(c, g), comp.len() * width, width, schedule);
+            }
+        }
+        let mut pose_params = Vec::new();
+        for (j, poses) in model.poses.iter().enumerate() {
+            let mut row = Vec::new();
+            for o in 0..poses.len() {
+                adam.add_group(
+                    &format!("pose{j}.{o}.t"),
+                    3,
+                    3,
+                    Schedule::Constant {
+                        lr: settings.lr_pose_translation,
+                    },
+                );
+                adam.add_group(
+                    &format!("pose{j}.{o}.r"),
+                    3,
+                    3,
+                    Schedule::Constant {
+                        lr: settings.lr_pose_rotation,
+                    },
+                );
+                row.extend([0.0f32; 6]);
+            }
+            pose_params.push(row);
+        }
+        let grad_accum = model
+            .components
+            .iter()
+            .map(|c| vec![0.0; c.len()])
+            .collect();
+        let grad_count = model.components.iter().map(|c| vec![0; c.len()]).collect();
+        Trainer {
+            rng: settings.seed ^ 0x5EED_1F05_E000_0001,
+            settings,
+            model,
+            adam,
+            iteration: 0,
+            grad_accum,
+            grad_count,
+            pose_params,
+        }
+    }
+
+    /// Picks the next training view (uniformly, seeded) among `views[j]` = observations of
+    /// training state j.
+    fn pick(&mut self, views: &[Vec<&Observation>]) -> (usize, usize) {
+        let total: usize = views.iter().map(Vec::len).sum();
+        let mut rng = SplitMix(self.rng);
+        let mut r = (rng.next_u64() % total as u64) as usize;
+        self.rng = rng.next_u64();
+        for (j, v) in views.iter().enumerate() {
+            if r < v.len() {
+                return (j, r);
+            }
+            r -= v.len();
+        }
+        unreachable!("r < total")
+    }
+
+    /// One iteration on one view: forward, losses, backward, Adam, densification.
+    pub fn step(&mut self, views: &[Vec<&Observation>]) -> Losses {
+        let (j, v) = self.pick(views);
+        let obs = views[j][v];
+        let s = &self.settings;
+        let surfels: Vec<Surfels> = self.model.components.iter().map(|c| c.surfels()).collect();
+        let placements = self.model.placements(&surfels, j);
+        let fwd = splat::forward(&placements, &obs.camera);
+        let img = &fwd.image;
+        let (w, h) = (img.width as usize, img.height as usize);
+        let n = w * h;
+        let valid: Vec<f32> = obs
+            .depth
+            .iter()
+            .map(|&z| if z > 0.0 { 1.0 } else { 0.0 })
+            .collect();
+        let target: Vec<[f32; 3]> = obs
+            .rgb
+            .iter()
+            .zip(&valid)
+            .map(|(c, m)| c.map(|x| x * m))
+            .collect();
+        let mut grad = ImageGrad::zeros(img.width, img.height);
+        let mut losses = Losses::default();
+
+        let rgb = optim::rgb_loss(&img.color, &target, w, h, s.lambda_dssim);
+        losses.rgb = rgb.value;
+        grad.color = rgb.grad;
+
+        // eq. alpha-coverage against the capture's coverage (1 where it saw a surface).
+        let inv = 1.0 / n.max(1) as f32;
+        let mut alpha_loss = 0.0;
+        for i in 0..n {
+            let d = img.alpha[i] - valid[i];
+            alpha_loss += d.abs();
+            grad.alpha[i] += s.lambda_alpha * inv * d.signum() * (d != 0.0) as i32 as f32;
+        }
+        losses.alpha = s.lambda_alpha * alpha_loss * inv;
+
+        let depth = optim::depth_l1(&img.depth, &obs.depth, None);
+        losses.depth = s.lambda_depth * depth.value;
+        for (g, d) in grad.depth.iter_mut().zip(&depth.grad) {
+            *g += s.lambda_depth * d;
+        }
+        let normal = optim::normal_loss(&img.normal, &obs.normal, None);
+        losses.normal = s.lambda_normal * normal.value;
+        for (g, d) in grad.normal.iter_mut().zip(&normal.grad) {
+            for k in 0..3 {
+                g[k] += s.lambda_normal * d[k];
+            }
+        }
+        if self.iteration >= s.depth_normal_from {
+            let dn = optim::depth_normal_loss(&img.depth, &obs.camera, &img.normal, Some(&img.alpha));
+            losses.depth_normal = s.lambda_depth_normal * dn.value;
+            for i in 0..n {
+                grad.depth[i] += s.lambda_depth_normal * dn.grad_depth[i];
+                for k in 0..3 {
+                    grad.normal[i][k] += s.lambda_depth_normal * dn.grad_normal[i][k];
+                }
+            }
+        }
+        let grads = fwd.backward(&grad);
+        drop(fwd);
+
+        // Parameter updates, component by component.
+        let iteration = self.iteration;
+        for (c, comp) in self.model.components.iter_mut().enumerate() {
+            let sg = &grads.surfels[c];
+            let act = &surfels[c];
+            let len = comp.len();
+            if len == 0 {
+                continue;
+            }
+            // eq. scale-regularization over every surfel of the scene, per component.
+            let scale_reg = optim::scale_regularization(&act.scale, s.s_max);
+            losses.scale += s.lambda_scale * scale_reg.value * len as f32;
+            let mut g_pos: Vec<f32> = sg.position.iter().flatten().copied().collect();
+            let g_rot: Vec<f32> = sg.rotation.iter().flatten().copied().collect();
+            let g_scale: Vec<f32> = (0..len)
+                .flat_map(|i| {
+                    [0, 1].map(|k| {
+                        splat::log_scale_grad(
+                            act.scale[i][k],
+                            sg.scale[i][k] + s.lambda_scale * scale_reg.grad[i][k],
+                        )
+                    })
+                })
+                .collect();
+            let g_opacity: Vec<f32> = (0..len)
+                .map(|i| splat::logit_grad(act.opacity[i], sg.opacity[i]))
+                .collect();
+            let g_sh: Vec<f32> = sg.sh.iter().flatten().copied().collect();
+            // Densification statistics: ‖∂L/∂μ‖ of the surfels this view touched.
+            for i in 0..len {
+                let gp = Vec3::new(g_pos[3 * i], g_pos[3 * i + 1], g_pos[3 * i + 2]).length();
+                if gp > 0.0 {
+                    self.grad_accum[c][i] += gp;
+                    self.grad_count[c][i] += 1;
+                }
+            }
+            if !g_pos.iter().all(|x| x.is_finite()) {
+                g_pos.iter_mut().for_each(|x| {
+                    if !x.is_finite() {
+                        *x = 0.0
+                    }
+                });
+            }
+            let groups = [g_pos, g_rot, g_scale, g_opacity, g_sh];
+            for (g, gr) in groups.iter().enumerate() {
+                let gi = self
+                    .adam
+                    .group_index(&group_name(c, g))
+                    .expect("every component has its groups");
+                self.adam.step(gi, comp.group_mut(g), gr);
+            }
+        }
+        let total_surfels: usize = self.model.surfel_count();
+        losses.scale /= total_surfels.max(1) as f32;
+
+        // Object poses of non-reference states (the reference state defines the object frame).
+        if j > 0 && iteration >= s.pose_from {
+            for (o, tg) in grads.transforms.iter().skip(1).enumerate() {
+                let p = &mut self.pose_params[j][6 * o..6 * o + 6];
+                let (pt, pr) = p.split_at_mut(3);
+                let gt = self.adam.group_index(&format!("pose{j}.{o}.t")).unwrap();
+                let gr = self.adam.group_index(&format!("pose{j}.{o}.r")).unwrap();
+                self.adam.step(gt, pt, &tg.translation);
+                self.adam.step(gr, pr, &tg.rotation);
+                let pose = &mut self.model.poses[j][o];
+                *pose = splat::perturb(pose, [pt[0], pt[1], pt[2]], [pr[0], pr[1], pr[2]]);
+                p.iter_mut().for_each(|x| *x = 0.0);
+            }
+        }
+        losses.total = losses.rgb
+            + losses.alpha
+            + losses.scale
+            + losses.depth
+            + losses.normal
+            + losses.depth_normal;
+        self.iteration += 1;
+        let it = self.iteration;
+        if it >= s.densify_from && it < s.densify_until && it % s.densify_every == 0 {
+            self.densify_and_prune();
+        }
+        losses
+    }
+
+    /// 2DGS's adaptive density control: clone small surfels and split large ones whose mean
+    /// positional gradient exceeds the threshold, prune nearly transparent ones.
+    pub fn densify_and_prune(&mut self) {
+        let s = self.settings.clone();
+        let mut budget = s.max_surfels.saturating_sub(self.model.surfel_count());
+        let mut rng = SplitMix(self.rng ^ 0xD0E5);
+        for c in 0..self.model.components.len() {
+            let comp = &mut self.model.components[c];
+            let n = comp.len();
+            let mean = |i: usize| {
+                let k = self.grad_count[c][i];
+                if k == 0 {
+                    0.0
+                } else {
+                    self.grad_accum[c][i] / k as f32
+                }
+            };
+            let grow: Vec<usize> = (0..n)
+                .filter(|&i| mean(i) > s.densify_grad)
+                .take(budget)
+                .collect();
+            budget -= grow.len();
+            // Copies are appended; splits then shrink both halves and move them apart.
+            comp.append_copies(&grow);
+            for (k, &i) in grow.iter().enumerate() {
+                let copy = n + k;
+                let ls = [comp.log_scale[2 * i], comp.log_scale[2 * i + 1]];
+                let big = ls[0].max(ls[1]).exp() > s.split_scale;
+                if big {
+                    // Split: two surfels at ±1σ samples along the tangent axes, scales / 1.6.
+                    let q = Quat::from_slice(&comp.rotation[4 * i..4 * i + 4]).normalize();
+                    for (idx, sign) in [(i, 1.0f32), (copy, -1.0)] {
+                        let off = q * Vec3::new(
+                            sign * rng.range(0.0, 1.0) * ls[0].exp(),
+                            sign * rng.range(-1.0, 1.0) * ls[1].exp(),
+                            0.0,
+                        );
+                        for d in 0..3 {
+                            comp.position[3 * idx + d] += off[d];
+                        }
+                        for d in 0..2 {
+                            comp.log_scale[2 * idx + d] -= 1.6f32.ln();
+                        }
+                    }
+                }
+            }
+            for g in 0..GROUPS.len() {
+                let gi = self.adam.group_index(&group_name(c, g)).unwrap();
+                self.adam.append_points(gi, grow.len());
+            }
+            // Prune.
+            let keep: Vec<usize> = (0..comp.len())
+                .filter(|&i| sigmoid(comp.logit_opacity[i]) >= s.prune_opacity)
+                .collect();
+            if keep.len() < comp.len() {
+                comp.gather(&keep);
+                for g in 0..GROUPS.len() {
+                    let gi = self.adam.group_index(&group_name(c, g)).unwrap();
+                    self.adam.keep_points(gi, &keep);
+                }
+            }
+            self.grad_accum[c] = vec![0.0; comp.len()];
+            self.grad_count[c] = vec![0; comp.len()];
+        }
+        self.rng = rng.next_u64();
+    }
+
+    /// Appends new surfels to component `c` (completion, eq. completion-mask), with fresh
+    /// optimiser moments.
+    pub fn add_surfels(&mut self, c: usize, new: &Surfels) {
+        let raw = RawComponent::from_component(&Component {
+            name: String::new(),
+            id: 0,
+            surfels: new.clone(),
+        });
+        let comp = &mut self.model.components[c];
+        assert_eq!(raw.sh_degree, comp.sh_degree, "completion surfels share the SH degree");
+        for g in 0..GROUPS.len() {
+            let src = match g {
+                0 => &raw.position,
+                1 => &raw.rotation,
+                2 => &raw.log_scale,
+                3 => &raw.logit_opacity,
+                _ => &raw.sh,
+            };
+            comp.group_mut(g).extend_from_slice(src);
+            let gi = self.adam.group_index(&group_name(c, g)).unwrap();
+            self.adam.append_points(gi, raw.len());
+        }
+        comp.base_color.extend(&raw.base_color);
+        comp.metallic.extend(&raw.metallic);
+        comp.roughness.extend(&raw.roughness);
+        self.grad_accum[c].resize(comp.len(), 0.0);
+        self.grad_count[c].resize(comp.len(), 0);
+    }
+}
+
+/// Renders training state `j` of the model for `camera` (activated once, in parallel).
+pub fn render_state(model: &Model, j: usize, camera: &crate::scene::Camera) -> splat::SplatImage {
+    let surfels: Vec<Surfels> = model
+        .components
+        .par_iter()
+        .map(RawComponent::surfels)
+        .collect();
+    splat::forward(&model.placements(&surfels, j), camera).image
+}

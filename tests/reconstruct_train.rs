@@ -1,0 +1,241 @@
+//! The stage-1 training loop on a synthetic two-state capture made by the splatting kernel
+//! itself: a textured floor and a textured box that moves between the states. Because the
+//! observations are exactly what the model can render, the loop must (1) recover an object pose
+//! that starts off by centimetres and degrees from the splatting gradients alone, and (2) fix a
+//! corrupted appearance and geometry well beyond its starting error.
+
+use glam::{Quat, Vec3};
+use lightfuse::io::dataset::Observation;
+use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::{Camera, Component, Rigid, Surfels, SH_C0};
+use lightfuse::splat::{self, Placement};
+use lightfuse::stages::reconstruct::train::{Model, RawComponent, Settings, Trainer};
+
+fn push_patch(s: &mut Surfels, rng: &mut SplitMix, centre: Vec3, normal: Vec3, half: f32, h: f32) {
+    let q = Quat::from_rotation_arc(Vec3::Z, normal.normalize());
+    let n = (2.0 * half / h).round() as i32;
+    for i in 0..n {
+        for j in 0..n {
+            let u = -half + (i as f32 + 0.5) * h;
+            let v = -half + (j as f32 + 0.5) * h;
+            let p = centre + q * Vec3::new(u, v, 0.0);
+            // Blocky texture (4×4 cells per patch) so poses are observable from colour.
+            let cell = ((i * 4 / n) + (j * 4 / n)) % 2;
+            let base = if cell == 0 { 0.8 } else { 0.2 };
+            let c = [base, rng.range(0.2, 0.8), 1.0 - base];
+            s.push(
+                p.to_array(),
+                q.to_array(),
+                [h, h],
+                0.95,
+                &[c.map(|x| (x - 0.5) / SH_C0)],
+                c,
+                0.0,
+                0.5,
+            );
+        }
+    }
+}
+
+fn scene() -> Vec<Component> {
+    let mut rng = SplitMix(3);
+    let mut floor = Surfels::with_sh_degree(0);
+    push_patch(&mut floor, &mut rng, Vec3::ZERO, Vec3::Y, 1.0, 0.04);
+    let mut boxy = Surfels::with_sh_degree(0);
+    let c = Vec3::new(0.0, 0.15, 0.0);
+    for n in [Vec3::X, -Vec3::X, Vec3::Y, Vec3::Z, -Vec3::Z] {
+        push_patch(&mut boxy, &mut rng, c + 0.15 * n, n, 0.15, 0.02);
+    }
+    vec![
+        Component {
+            name: "background".into(),
+            id: 0,
+            surfels: floor,
+        },
+        Component {
+            name: "box".into(),
+            id: 1,
+            surfels: boxy,
+        },
+    ]
+}
+
+fn camera(angle: f32, w: u32, h: u32) -> Camera {
+    let eye = Vec3::new(1.6 * angle.cos(), 1.2, 1.6 * angle.sin());
+    let fwd = (Vec3::new(0.0, 0.1, 0.0) - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let back = -fwd;
+    Camera {
+        transform_matrix: [
+            [right.x, up.x, back.x, eye.x],
+            [right.y, up.y, back.y, eye.y],
+            [right.z, up.z, back.z, eye.z],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+        fl_x: 60.0,
+        fl_y: 60.0,
+        cx: w as f32 / 2.0,
+        cy: h as f32 / 2.0,
+        w,
+        h,
+    }
+}
+
+/// What a capture of the components placed by `pose` would hold.
+fn observe(components: &[Component], pose: Rigid, state: usize, view: usize, cam: Camera) -> Observation {
+    let place = [
+        Placement::world(&components[0].surfels),
+        Placement {
+            surfels: &components[1].surfels,
+            transform: pose,
+        },
+    ];
+    let full = splat::forward(&place, &cam).image;
+    let object = splat::forward(&place[1..], &cam).image;
+    let n = full.pixels();
+    let covered = |i: usize| full.alpha[i] > 0.5;
+    Observation {
+        state,
+        view,
+        camera: cam,
+        rgb: full.color.clone(),
+        depth: (0..n).map(|i| if covered(i) { full.depth[i] } else { 0.0 }).collect(),
+        normal: (0..n)
+            .map(|i| {
+                let v = Vec3::from_array(full.normal[i]);
+                if covered(i) {
+                    v.normalize_or_zero().to_array()
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect(),
+        mask: (0..n)
+            .map(|i| {
+                let front = object.alpha[i] > 0.5 && object.depth[i] <= full.depth[i] + 1e-3;
+                (covered(i) && front) as u8
+            })
+            .collect(),
+    }
+}
+
+fn frozen_surfels(iterations: u32) -> Settings {
+    Settings {
+        iterations,
+        lr_position_init: 1e-20,
+        lr_position_final: 1e-20,
+        lr_rotation: 0.0,
+        lr_scale: 0.0,
+        lr_opacity: 0.0,
+        lr_sh_dc: 0.0,
+        lr_pose_translation: 1e-3,
+        lr_pose_rotation: 2e-3,
+        pose_from: 0,
+        depth_normal_from: u32::MAX,
+        densify_from: u32::MAX,
+        ..Settings::fast()
+    }
+}
+
+fn angle_deg(a: &Rigid, b: &Rigid) -> f32 {
+    let q = a.quat().normalize().inverse() * b.quat().normalize();
+    2.0 * q.w.abs().min(1.0).acos().to_degrees()
+}
+
+fn distance(a: &Rigid, b: &Rigid) -> f32 {
+    (Vec3::from_array(a.translation) - Vec3::from_array(b.translation)).length()
+}
+
+#[test]
+fn poses_are_recovered_from_splatting_gradients() {
+    let comps = scene();
+    let truth = Rigid {
+        rotation: Quat::from_rotation_y(0.7).to_array(),
+        translation: [0.3, 0.0, -0.2],
+    };
+    let obs: Vec<Vec<Observation>> = [Rigid::IDENTITY, truth]
+        .iter()
+        .enumerate()
+        .map(|(k, &pose)| {
+            (0..6)
+                .map(|v| observe(&comps, pose, k, v, camera(v as f32 * 1.047, 64, 48)))
+                .collect()
+        })
+        .collect();
+    let start = splat::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
+    let (e_t0, e_r0) = (distance(&start, &truth), angle_deg(&start, &truth));
+    let model = Model {
+        components: comps.iter().map(RawComponent::from_component).collect(),
+        poses: vec![vec![Rigid::IDENTITY], vec![start]],
+    };
+    let mut trainer = Trainer::new(frozen_surfels(600), model);
+    let views: Vec<Vec<&Observation>> = obs.iter().map(|v| v.iter().collect()).collect();
+    for _ in 0..600 {
+        trainer.step(&views);
+    }
+    let est = trainer.model.poses[1][0];
+    let (e_t, e_r) = (distance(&est, &truth), angle_deg(&est, &truth));
+    eprintln!("pose error: {e_t0:.4} m / {e_r0:.2}° -> {e_t:.4} m / {e_r:.2}°");
+    // Started 2.5 cm / 2.9° off (measured end: 0.5 mm / 0.22°). The captures are exact renders,
+    // so the optimum is the truth; what is left is Adam's step size (lr 1e-3 m, 2e-3 rad)
+    // jittering about it: bounded by a few mm and a few tenths of a degree.
+    assert!(e_t < 0.005 && e_r < 0.5, "from {e_t0:.4} m / {e_r0:.2}° to {e_t:.4} m / {e_r:.2}°");
+    // The reference state's poses never move.
+    assert_eq!(trainer.model.poses[0][0], Rigid::IDENTITY);
+}
+
+fn psnr(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let se: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (0..3).map(|k| ((x[k] - y[k]) as f64).powi(2)).sum::<f64>())
+        .sum();
+    -10.0 * (se / (3 * a.len()) as f64).log10()
+}
+
+#[test]
+fn training_repairs_a_corrupted_reconstruction() {
+    let comps = scene();
+    let obs: Vec<Vec<Observation>> = vec![(0..7)
+        .map(|v| observe(&comps, Rigid::IDENTITY, 0, v, camera(v as f32 * 0.9, 64, 48)))
+        .collect()];
+    let held = observe(&comps, Rigid::IDENTITY, 0, 99, camera(0.45, 64, 48));
+    // Corrupt: colours scrambled, centres jittered by up to 1 cm, opacities halved.
+    let mut rng = SplitMix(9);
+    let mut bad = comps.clone();
+    for c in &mut bad {
+        let s = &mut c.surfels;
+        for i in 0..s.len() {
+            s.sh[i] = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+            for k in 0..3 {
+                s.position[i][k] += rng.range(-0.01, 0.01);
+            }
+            s.opacity[i] *= 0.5;
+        }
+    }
+    let model = Model {
+        components: bad.iter().map(RawComponent::from_component).collect(),
+        poses: vec![vec![Rigid::IDENTITY]],
+    };
+    let render = |m: &Model| lightfuse::stages::reconstruct::train::render_state(m, 0, &held.camera);
+    let before = psnr(&render(&model).color, &held.rgb);
+    let settings = Settings {
+        iterations: 400,
+        densify_from: u32::MAX,
+        ..Settings::fast()
+    };
+    let mut trainer = Trainer::new(settings, model);
+    let views: Vec<Vec<&Observation>> = obs.iter().map(|v| v.iter().collect()).collect();
+    let first = trainer.step(&views).total;
+    let mut last = first;
+    for _ in 1..400 {
+        last = trainer.step(&views).total;
+    }
+    let after = psnr(&render(&trainer.model).color, &held.rgb);
+    eprintln!("held-out PSNR {before:.2} -> {after:.2} dB, loss {first:.4} -> {last:.4}");
+    // A view no iteration saw must improve a lot: measured 14.9 -> 28.8 dB here; +10 dB leaves
+    // room for other seeds and thread counts without letting a loop that barely learns pass.
+    assert!(after > before + 10.0, "held-out PSNR {before:.2} -> {after:.2} dB");
+    assert!(last < 0.5 * first, "loss {first} -> {last}");
+}
