@@ -7,6 +7,7 @@ pub mod error;
 pub mod io;
 pub mod scene;
 pub mod shade;
+pub mod stages;
 pub mod trace;
 
 pub use error::{Error, Result};

@@ -1,0 +1,3 @@
+//! The paper's three stages, each a plain function of files (DESIGN §4).
+
+pub mod reconstruct;

@@ -1,0 +1,4 @@
+//! Stage 1, reference reconstruction (paper §"Interactive Scene Reconstruction").
+
+pub mod init;
+pub mod register;
