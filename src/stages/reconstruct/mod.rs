@@ -1,6 +1,12 @@
-//! Stage 1, reconstruct (paper §"Interactive Scene Reconstruction").
+//! Stage 1, reconstruct (paper §"Interactive Scene Reconstruction"): initialisation from RGB-D
+//! ([`init`]), object poses per state ([`register`]), the background/object graph cut
+//! ([`segment`], [`maxflow`]), completion (eq. completion-mask, [`completion`]), the training
+//! loop ([`train`]) and the stage as a function of files ([`run`]).
 
 pub mod completion;
+pub mod init;
 pub mod maxflow;
+pub mod register;
+pub mod run;
 pub mod segment;
 pub mod train;

