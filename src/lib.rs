@@ -1,0 +1,16 @@
+//! LightFuse: relightable, rearrangeable scenes of 2D Gaussian surfels with physically based
+//! materials, reconstructed from multi-state captures. See `DESIGN.md` (shared) and
+//! `docs/formats.md` for the data flow, the conventions and the file formats.
+
+pub mod cli;
+pub mod error;
+pub mod eval;
+pub mod io;
+pub mod optim;
+pub mod scene;
+pub mod shade;
+pub mod splat;
+pub mod stages;
+pub mod trace;
+
+pub use error::{Error, Result};

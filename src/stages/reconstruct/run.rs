@@ -1,0 +1,522 @@
+//! `lightfuse reconstruct`: stage 1 end to end, a plain function of files.
+//!
+//! 1. Read the dataset and every training observation (checked: [`Dataset::training_observations`]);
+//!    every 8th view of each state (index ≡ 0 mod 8, the mip-NeRF 360 convention) is held out.
+//! 2. Back-project the training views ([`init::backproject`]), estimate each object's pose in
+//!    every state from its masked points ([`register::object_poses`]; ground truth only with
+//!    `--oracle-poses`), and build the initial components ([`init::initial_components`]).
+//! 3. Clean the labels with the graph cut ([`segment::segment`]) over the reference state.
+//! 4. Train ([`train::Trainer`]); at a third of the iterations, seed surfels where the render lies
+//!    behind the captured depth (eq. completion-mask).
+//! 5. Write `scene.glb`, `report.json` (held-out PSNR, depth error, pose errors, label shares),
+//!    `log.jsonl` (losses) and `checkpoint.json` (resumable with `--resume`).
+
+use super::train::{render_state, Losses, Model, RawComponent, Settings, Trainer};
+use super::{completion, init, register, segment};
+use crate::error::{Error, Result};
+use crate::io::dataset::{Dataset, Observation};
+use crate::io::AtomicFiles;
+use crate::scene::{Component, Rigid, Scene, State};
+use glam::Vec3;
+use serde::Serialize;
+use serde_json::json;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Views with index ≡ 0 (mod HOLDOUT) are withheld from training.
+pub const HOLDOUT: usize = 8;
+
+pub struct Options {
+    pub dataset: PathBuf,
+    pub out: PathBuf,
+    pub settings: Settings,
+    pub oracle_poses: bool,
+    pub resume: bool,
+    pub quiet: bool,
+    /// Voxel pitch of the initialisation, metres.
+    pub voxel: f32,
+    /// Depth-discrepancy threshold τ_D of eq. completion-mask, metres.
+    pub tau_d: f32,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct PoseError {
+    pub state: String,
+    pub object: String,
+    pub rotation_deg: f32,
+    pub translation_cm: f32,
+    pub fitness: Option<f32>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub dataset: String,
+    pub iterations: u32,
+    pub surfels: usize,
+    pub seconds: f64,
+    /// Held-out views: PSNR in sRGB over the pixels the capture saw a surface in.
+    pub heldout_psnr_srgb: f64,
+    pub heldout_views: usize,
+    /// Median |D̂ − D*| over held-out pixels with reference depth, metres, and as a share of
+    /// the scene's extent (diagonal of the training points' bounds).
+    pub heldout_median_depth_error_m: f64,
+    pub heldout_median_depth_error_rel: f64,
+    pub pose_errors: Vec<PoseError>,
+    /// Per object: share of its true surface points (masked reference depth) whose nearest
+    /// surfel carries its label.
+    pub label_share: Vec<(String, f64)>,
+    pub oracle_poses: bool,
+}
+
+fn progress(quiet: bool, len: u64, msg: &str) -> indicatif::ProgressBar {
+    if quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(len);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg:12} [{bar:30}] {pos}/{len} {elapsed} eta {eta} {prefix}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(msg.to_string());
+    bar
+}
+
+fn say(quiet: bool, s: &str) {
+    if !quiet {
+        eprintln!("{s}");
+    }
+}
+
+fn rotation_angle_deg(a: &Rigid, b: &Rigid) -> f32 {
+    let q = a.quat().normalize().inverse() * b.quat().normalize();
+    2.0 * q.w.abs().min(1.0).acos().to_degrees()
+}
+
+/// Splits held-out from training observations per training state.
+fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Observation>>) {
+    let mut train = Vec::new();
+    let mut held = Vec::new();
+    for state in obs {
+        let (h, t): (Vec<_>, Vec<_>) = state.into_iter().partition(|o| o.view % HOLDOUT == 0);
+        train.push(t);
+        held.push(h);
+    }
+    (train, held)
+}
+
+fn checkpoint_path(out: &Path) -> PathBuf {
+    out.join("checkpoint.json")
+}
+
+fn write_checkpoint(out: &Path, trainer: &Trainer) -> Result<()> {
+    let bytes = serde_json::to_vec(trainer).map_err(|e| Error::Usage(format!("checkpoint: {e}")))?;
+    let mut files = AtomicFiles::new();
+    files.write(&checkpoint_path(out), &bytes)?;
+    files.commit()
+}
+
+/// The scene the model stands for: components and one state per training state.
+fn scene_of(model: &Model, dataset: &Dataset, train: &[usize]) -> Scene {
+    let components = model.scene_components();
+    let states = train
+        .iter()
+        .enumerate()
+        .map(|(j, &k)| State {
+            name: dataset.states[k].name.clone(),
+            transforms: std::iter::once(Rigid::IDENTITY)
+                .chain(model.poses[j].iter().copied())
+                .collect(),
+            environment: None,
+        })
+        .collect();
+    Scene {
+        components,
+        states,
+        reference_state: 0,
+        environments: Vec::new(),
+    }
+}
+
+/// Moves surfels between components to match the graph cut's labels (all components live in
+/// the reference state's frame, so a move is a copy).
+fn relabel(components: &mut Vec<Component>, labels: &[u8]) -> usize {
+    let ids: Vec<u32> = components.iter().map(|c| c.id).collect();
+    let mut moved = 0;
+    let mut out: Vec<crate::scene::Surfels> = components
+        .iter()
+        .map(|c| crate::scene::Surfels::with_sh_degree(c.surfels.sh_degree))
+        .collect();
+    let mut i = 0;
+    for (c, comp) in components.iter().enumerate() {
+        let s = &comp.surfels;
+        for k in 0..s.len() {
+            let label = labels[i] as u32;
+            i += 1;
+            let to = ids.iter().position(|&id| id == label).unwrap_or(c);
+            if to != c {
+                moved += 1;
+            }
+            out[to].push(
+                s.position[k],
+                s.rotation[k],
+                s.scale[k],
+                s.opacity[k],
+                s.sh_of(k),
+                s.base_color[k],
+                s.metallic[k],
+                s.roughness[k],
+            );
+        }
+    }
+    for (comp, s) in components.iter_mut().zip(out) {
+        comp.surfels = s;
+    }
+    moved
+}
+
+fn concat(components: &[Component]) -> crate::scene::Surfels {
+    let mut all = crate::scene::Surfels::with_sh_degree(components[0].surfels.sh_degree);
+    for c in components {
+        all.extend(&c.surfels);
+    }
+    all
+}
+
+/// Stage 1 from the dataset to `scene.glb` and `report.json` in `opts.out`.
+pub fn reconstruct(opts: &Options) -> Result<Report> {
+    let t0 = Instant::now();
+    let dataset = Dataset::read(&opts.dataset)?;
+    let train_states = dataset.train_states();
+    say(opts.quiet, &format!("reading {} training states", train_states.len()));
+    let (train, held) = split(dataset.training_observations()?);
+    for (j, t) in train.iter().enumerate() {
+        if t.is_empty() {
+            return Err(Error::invalid(
+                &dataset.file,
+                format!("states[{}].frames", train_states[j]),
+                format!("expected at least 2 frames: view 0 of every {HOLDOUT} is held out"),
+            ));
+        }
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
+    let objects: Vec<init::ObjectRef> = dataset
+        .objects
+        .iter()
+        .map(|o| init::ObjectRef {
+            id: o.id as u8,
+            name: o.name.clone(),
+        })
+        .collect();
+
+    let mut trainer = if opts.resume && checkpoint_path(&opts.out).is_file() {
+        let path = checkpoint_path(&opts.out);
+        let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+        let t: Trainer = serde_json::from_slice(&bytes)
+            .map_err(|e| Error::invalid(&path, "checkpoint", format!("expected a LightFuse checkpoint: {e}")))?;
+        t.adam.validate(&path)?;
+        if t.model.poses.len() != train.len() || t.model.components.len() != objects.len() + 1 {
+            return Err(Error::invalid(&path, "model", "expected a checkpoint of this dataset's states and objects"));
+        }
+        say(opts.quiet, &format!("resuming at iteration {}", t.iteration));
+        let mut t = t;
+        // The run's length may be extended (the position schedule keeps its original span).
+        t.settings.iterations = opts.settings.iterations;
+        t
+    } else {
+        // Initialisation (item 2): every training view back-projected.
+        let bopts = init::BackprojectOptions::default();
+        let clouds: Vec<init::PointCloud> = train
+            .iter()
+            .map(|views| {
+                let mut c = init::PointCloud::default();
+                for o in views {
+                    c.extend(&init::backproject(o, &bopts));
+                }
+                c
+            })
+            .collect();
+        // Poses (item 4).
+        let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
+        let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
+            train_states
+                .iter()
+                .map(|&k| {
+                    objects
+                        .iter()
+                        .map(|o| {
+                            let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
+                            let pose = dataset.object_pose(k, &o.name)?;
+                            Ok(pose.compose(&init::inverse(&ref_pose)))
+                        })
+                        .collect::<Result<Vec<_>>>()
+                })
+                .collect::<Result<_>>()?
+        } else {
+            let t = Instant::now();
+            let reg = register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
+            let mut out = Vec::new();
+            for (j, row) in reg.iter().enumerate() {
+                let mut poses = Vec::new();
+                for (o, r) in row.iter().enumerate() {
+                    match r {
+                        Some(r) => poses.push(r.transform),
+                        None => {
+                            say(opts.quiet, &format!(
+                                "warning: object {:?} is too sparsely seen in state {:?} to register; it keeps its reference pose there",
+                                objects[o].name, dataset.states[train_states[j]].name));
+                            poses.push(Rigid::IDENTITY);
+                        }
+                    }
+                }
+                out.push(poses);
+            }
+            say(opts.quiet, &format!("registered {} objects in {} states in {:.1} s", objects.len(), train.len(), t.elapsed().as_secs_f64()));
+            out
+        };
+        let iopts = init::InitOptions {
+            voxel: opts.voxel,
+            ..Default::default()
+        };
+        let mut components = init::initial_components(&clouds, &objects, &poses, &iopts);
+        // Decomposition (item 3) over the reference state.
+        let all = concat(&components);
+        let seg = segment::segment(
+            &segment::SurfelPoints::from_surfels(&all),
+            &train[0],
+            &segment::SegmentParams::default(),
+        )?;
+        let moved = relabel(&mut components, &seg.labels);
+        say(opts.quiet, &format!(
+            "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
+            all.len(), moved, seg.energy_before, seg.energy_after));
+        let model = Model {
+            components: components.iter().map(RawComponent::from_component).collect(),
+            poses,
+        };
+        Trainer::new(opts.settings.clone(), model)
+    };
+
+    // Training (item 6) with completion (item 5).
+    let views: Vec<Vec<&Observation>> = train.iter().map(|v| v.iter().collect()).collect();
+    let total = trainer.settings.iterations;
+    let bar = progress(opts.quiet, total as u64, "training");
+    bar.set_position(trainer.iteration as u64);
+    let log_path = opts.out.join("log.jsonl");
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .map_err(|e| Error::io(&log_path, e))?;
+    let completion_at = total / 3;
+    let mut window = Losses::default();
+    let mut window_n = 0u32;
+    while trainer.iteration < total {
+        if trainer.iteration == completion_at && completion_at > 0 {
+            let added = complete(&mut trainer, &train, opts)?;
+            bar.println(format!("completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)", opts.tau_d));
+        }
+        let l = trainer.step(&views);
+        window.total += l.total;
+        window.rgb += l.rgb;
+        window.depth += l.depth;
+        window.normal += l.normal;
+        window.alpha += l.alpha;
+        window.depth_normal += l.depth_normal;
+        window.scale += l.scale;
+        window_n += 1;
+        bar.inc(1);
+        if trainer.iteration % 50 == 0 || trainer.iteration == total {
+            let k = window_n.max(1) as f32;
+            let line = json!({
+                "iteration": trainer.iteration, "surfels": trainer.model.surfel_count(),
+                "total": window.total / k, "rgb": window.rgb / k, "alpha": window.alpha / k,
+                "scale": window.scale / k, "depth": window.depth / k, "normal": window.normal / k,
+                "depth_normal": window.depth_normal / k,
+            });
+            writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
+            bar.set_prefix(format!("loss {:.4} · {} surfels", window.total / k, trainer.model.surfel_count()));
+            window = Losses::default();
+            window_n = 0;
+        }
+        if trainer.iteration % 500 == 0 || trainer.iteration == total {
+            write_checkpoint(&opts.out, &trainer)?;
+        }
+    }
+    bar.finish_and_clear();
+
+    let scene = scene_of(&trainer.model, &dataset, &train_states);
+    crate::io::write_scene(&scene, &opts.out.join("scene.glb"))?;
+    let report = evaluate(&trainer.model, &dataset, &train_states, &train, &held, opts, t0)?;
+    let mut files = AtomicFiles::new();
+    files.write(
+        &opts.out.join("report.json"),
+        &serde_json::to_vec_pretty(&report).expect("report serialises"),
+    )?;
+    files.commit()?;
+    Ok(report)
+}
+
+/// Seeds surfels where every training view's render lies behind the capture by more than τ_D
+/// (eq. completion-mask), each into the component its mask names, in that component's frame.
+fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -> Result<usize> {
+    let iopts = init::InitOptions {
+        voxel: opts.voxel,
+        ..Default::default()
+    };
+    let ids: Vec<u32> = trainer.model.components.iter().map(|c| c.id).collect();
+    let mut per_component: Vec<init::PointCloud> = vec![init::PointCloud::default(); ids.len()];
+    for (j, views) in train.iter().enumerate() {
+        for o in views {
+            let img = render_state(&trainer.model, j, &o.camera);
+            let mask = completion::completion_mask(&img.depth, &o.depth, opts.tau_d)?;
+            let seeds = completion::seed_points(o, &mask)?;
+            for i in 0..seeds.len() {
+                let c = ids.iter().position(|&id| id == seeds.mask[i] as u32).unwrap_or(0);
+                let mut p = seeds.position[i];
+                let mut n = seeds.normal[i];
+                if c > 0 {
+                    let inv = init::inverse(&trainer.model.poses[j][c - 1]);
+                    p = inv.transform_point(p);
+                    n = (inv.quat() * Vec3::from_array(n)).to_array();
+                }
+                per_component[c].push(p, n, seeds.rgb[i], seeds.mask[i], j as u32, seeds.footprint[i]);
+            }
+        }
+    }
+    let mut added = 0;
+    for (c, cloud) in per_component.iter().enumerate() {
+        if cloud.is_empty() {
+            continue;
+        }
+        let s = init::points_to_surfels(&init::voxel_thin(cloud, opts.voxel), &iopts);
+        added += s.len();
+        trainer.add_surfels(c, &s);
+    }
+    Ok(added)
+}
+
+fn srgb(x: f32) -> f64 {
+    let x = x.clamp(0.0, 1.0) as f64;
+    if x <= 0.0031308 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+fn evaluate(
+    model: &Model,
+    dataset: &Dataset,
+    train_states: &[usize],
+    train: &[Vec<Observation>],
+    held: &[Vec<Observation>],
+    opts: &Options,
+    t0: Instant,
+) -> Result<Report> {
+    // Held-out views: PSNR over covered pixels, depth error.
+    let mut psnrs = Vec::new();
+    let mut depth_err = Vec::new();
+    for (j, views) in held.iter().enumerate() {
+        for o in views {
+            let img = render_state(model, j, &o.camera);
+            let (mut se, mut n) = (0.0f64, 0usize);
+            for i in 0..o.depth.len() {
+                if o.depth[i] > 0.0 {
+                    for k in 0..3 {
+                        let d = srgb(img.color[i][k]) - srgb(o.rgb[i][k]);
+                        se += d * d;
+                    }
+                    n += 3;
+                    if img.alpha[i] > 0.0 {
+                        depth_err.push((img.depth[i] - o.depth[i]).abs() as f64);
+                    } else {
+                        depth_err.push(o.depth[i] as f64);
+                    }
+                }
+            }
+            if n > 0 {
+                psnrs.push(-10.0 * (se / n as f64).max(1e-20).log10());
+            }
+        }
+    }
+    depth_err.sort_by(|a, b| a.total_cmp(b));
+    let median = depth_err.get(depth_err.len() / 2).copied().unwrap_or(f64::NAN);
+    // Scene extent from the training captures' points.
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for views in train {
+        for o in views {
+            for (i, &z) in o.depth.iter().enumerate() {
+                if z > 0.0 {
+                    let (x, y) = (i % o.camera.w as usize, i / o.camera.w as usize);
+                    let p = Vec3::from_array(init::pixel_to_world(&o.camera, x, y, z));
+                    lo = lo.min(p);
+                    hi = hi.max(p);
+                }
+            }
+        }
+    }
+    let extent = (hi - lo).length() as f64;
+
+    // Pose errors against the ground truth (evaluation only).
+    let mut pose_errors = Vec::new();
+    let ref_k = train_states[0];
+    for (j, &k) in train_states.iter().enumerate().skip(1) {
+        for (o, obj) in dataset.objects.iter().enumerate() {
+            let gt = dataset
+                .object_pose(k, &obj.name)?
+                .compose(&init::inverse(&dataset.object_pose(ref_k, &obj.name)?));
+            let est = model.poses[j][o];
+            pose_errors.push(PoseError {
+                state: dataset.states[k].name.clone(),
+                object: obj.name.clone(),
+                rotation_deg: rotation_angle_deg(&gt, &est),
+                translation_cm: 100.0
+                    * (Vec3::from_array(gt.translation) - Vec3::from_array(est.translation)).length(),
+                fitness: None,
+            });
+        }
+    }
+
+    // Label shares: true surface points of each object (masked depth, reference state, all its
+    // views) against the nearest surfel of the assembled reference state.
+    let comps = model.scene_components();
+    let mut centres: Vec<[f32; 3]> = Vec::new();
+    let mut owner: Vec<u32> = Vec::new();
+    for c in &comps {
+        centres.extend(&c.surfels.position);
+        owner.extend(std::iter::repeat_n(c.id, c.surfels.len()));
+    }
+    let tree = register::KdTree::new(&centres);
+    let mut label_share = Vec::new();
+    for obj in &dataset.objects {
+        let (mut good, mut all) = (0usize, 0usize);
+        for o in train[0].iter().chain(&held[0]) {
+            for (i, &z) in o.depth.iter().enumerate() {
+                if z > 0.0 && o.mask[i] as u32 == obj.id {
+                    let (x, y) = (i % o.camera.w as usize, i / o.camera.w as usize);
+                    let p = init::pixel_to_world(&o.camera, x, y, z);
+                    if let Some((n, _)) = tree.nearest(&p) {
+                        all += 1;
+                        good += (owner[n] == obj.id) as usize;
+                    }
+                }
+            }
+        }
+        label_share.push((obj.name.clone(), good as f64 / all.max(1) as f64));
+    }
+    Ok(Report {
+        dataset: dataset.file.display().to_string(),
+        iterations: opts.settings.iterations,
+        surfels: model.surfel_count(),
+        seconds: t0.elapsed().as_secs_f64(),
+        heldout_psnr_srgb: psnrs.iter().sum::<f64>() / psnrs.len().max(1) as f64,
+        heldout_views: psnrs.len(),
+        heldout_median_depth_error_m: median,
+        heldout_median_depth_error_rel: median / extent.max(1e-9),
+        pose_errors,
+        label_share,
+        oracle_poses: opts.oracle_poses,
+    })
+}
