@@ -166,7 +166,7 @@ fn poses_are_recovered_from_splatting_gradients() {
     let start = splat::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
     let (e_t0, e_r0) = (distance(&start, &truth), angle_deg(&start, &truth));
     let model = Model {
-        components: comps.iter().map(RawComponent::from_component).collect(),
+        components: comps.iter().map(|c| RawComponent::from_component(c, 2)).collect(),
         poses: vec![vec![Rigid::IDENTITY], vec![start]],
     };
     let mut trainer = Trainer::new(frozen_surfels(600), model);
@@ -215,7 +215,7 @@ fn training_repairs_a_corrupted_reconstruction() {
         }
     }
     let model = Model {
-        components: bad.iter().map(RawComponent::from_component).collect(),
+        components: bad.iter().map(|c| RawComponent::from_component(c, 1)).collect(),
         poses: vec![vec![Rigid::IDENTITY]],
     };
     let render = |m: &Model| lightfuse::stages::reconstruct::train::render_state(m, 0, &held.camera);

@@ -292,7 +292,10 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
             "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
             all.len(), moved, seg.energy_before, seg.energy_after));
         let model = Model {
-            components: components.iter().map(RawComponent::from_component).collect(),
+            components: components
+                .iter()
+                .map(|c| RawComponent::from_component(c, poses.len()))
+                .collect(),
             poses,
         };
         Trainer::new(opts.settings.clone(), model)

@@ -120,19 +120,22 @@ pub struct RawComponent {
     pub rotation: Vec<f32>,
     pub log_scale: Vec<f32>,
     pub logit_opacity: Vec<f32>,
-    pub sh: Vec<f32>,
+    /// SH coefficients per training state: each state was lit by its own environment, so the
+    /// baked appearance is per state while the geometry is shared (index 0 = reference state,
+    /// the one written to `scene.glb`).
+    pub sh: Vec<Vec<f32>>,
     /// Carried through untouched (stage 3 optimises them).
     pub base_color: Vec<[f32; 3]>,
     pub metallic: Vec<f32>,
     pub roughness: Vec<f32>,
 }
 
-const GROUPS: [(&str, usize); 5] = [
+/// The shared parameter groups; groups 4.. are the SH of each training state.
+const GROUPS: [(&str, usize); 4] = [
     ("position", 3),
     ("rotation", 4),
     ("log_scale", 2),
     ("logit_opacity", 1),
-    ("sh", 3),
 ];
 
 fn logit(a: f32) -> f32 {
@@ -145,8 +148,10 @@ fn sigmoid(x: f32) -> f32 {
 }
 
 impl RawComponent {
-    pub fn from_component(c: &Component) -> RawComponent {
+    /// The component's parameters with the same SH for each of `states` training states.
+    pub fn from_component(c: &Component, states: usize) -> RawComponent {
         let s = &c.surfels;
+        let sh: Vec<f32> = s.sh.iter().flatten().copied().collect();
         RawComponent {
             name: c.name.clone(),
             id: c.id,
@@ -155,7 +160,7 @@ impl RawComponent {
             rotation: s.rotation.iter().flatten().copied().collect(),
             log_scale: s.scale.iter().flatten().map(|v| v.ln()).collect(),
             logit_opacity: s.opacity.iter().map(|&a| logit(a)).collect(),
-            sh: s.sh.iter().flatten().copied().collect(),
+            sh: vec![sh; states.max(1)],
             base_color: s.base_color.clone(),
             metallic: s.metallic.clone(),
             roughness: s.roughness.clone(),
@@ -180,21 +185,26 @@ impl RawComponent {
             1 => &mut self.rotation,
             2 => &mut self.log_scale,
             3 => &mut self.logit_opacity,
-            _ => &mut self.sh,
+            _ => &mut self.sh[g - GROUPS.len()],
         }
     }
 
     /// Group widths per surfel (the SH group is `3 × stride` wide).
     fn width(&self, g: usize) -> usize {
-        if g == 4 {
+        if g >= GROUPS.len() {
             3 * self.stride()
         } else {
             GROUPS[g].1
         }
     }
 
-    /// The activated surfels: normalised quaternions, exp scales, sigmoid opacities.
-    pub fn surfels(&self) -> Surfels {
+    fn groups(&self) -> usize {
+        GROUPS.len() + self.sh.len()
+    }
+
+    /// The activated surfels with state `j`'s appearance: normalised quaternions, exp scales,
+    /// sigmoid opacities.
+    pub fn surfels(&self, j: usize) -> Surfels {
         let n = self.len();
         let stride = self.stride();
         let mut s = Surfels::with_sh_degree(self.sh_degree);
@@ -217,7 +227,7 @@ impl RawComponent {
             .collect();
         s.opacity = self.logit_opacity.iter().map(|&x| sigmoid(x)).collect();
         s.sh = (0..n * stride)
-            .map(|j| [0, 1, 2].map(|k| self.sh[3 * j + k]))
+            .map(|i| [0, 1, 2].map(|k| self.sh[j][3 * i + k]))
             .collect();
         s.base_color = self.base_color.clone();
         s.metallic = self.metallic.clone();
@@ -227,7 +237,7 @@ impl RawComponent {
 
     /// Keeps surfels `keep` (in that order).
     fn gather(&mut self, keep: &[usize]) {
-        for g in 0..GROUPS.len() {
+        for g in 0..self.groups() {
             let w = self.width(g);
             let v = self.group_mut(g);
             let out: Vec<f32> = keep
@@ -243,7 +253,7 @@ impl RawComponent {
 
     /// Appends copies of surfels `from`, then lets `edit` change the copies.
     fn append_copies(&mut self, from: &[usize]) {
-        for g in 0..GROUPS.len() {
+        for g in 0..self.groups() {
             let w = self.width(g);
             let v = self.group_mut(g);
             for &i in from {
@@ -280,7 +290,7 @@ impl Model {
             .map(|c| Component {
                 name: c.name.clone(),
                 id: c.id,
-                surfels: c.surfels(),
+                surfels: c.surfels(0),
             })
             .collect()
     }
@@ -330,15 +340,19 @@ pub struct Losses {
 }
 
 fn group_name(c: usize, g: usize) -> String {
-    format!("c{c}.{}", GROUPS[g].0)
+    match GROUPS.get(g) {
+        Some((name, _)) => format!("c{c}.{name}"),
+        None => format!("c{c}.sh{}", g - GROUPS.len()),
+    }
 }
 
 impl Trainer {
     pub fn new(settings: Settings, model: Model) -> Trainer {
         let mut adam = Adam::new();
         for (c, comp) in model.components.iter().enumerate() {
-            for (g, (name, _)) in GROUPS.iter().enumerate() {
-                let schedule = match *name {
+            for g in 0..comp.groups() {
+                let name = GROUPS.get(g).map_or("sh", |(n, _)| *n);
+                let schedule = match name {
                     "position" => Schedule::Exponential {
                         lr_init: settings.lr_position_init,
                         lr_final: settings.lr_position_final,
@@ -425,7 +439,7 @@ impl Trainer {
         let (j, v) = self.pick(views);
         let obs = views[j][v];
         let s = &self.settings;
-        let surfels: Vec<Surfels> = self.model.components.iter().map(|c| c.surfels()).collect();
+        let surfels: Vec<Surfels> = self.model.components.iter().map(|c| c.surfels(j)).collect();
         let placements = self.model.placements(&surfels, j);
         let fwd = splat::forward(&placements, &obs.camera);
         let img = &fwd.image;
@@ -528,7 +542,9 @@ impl Trainer {
                 });
             }
             let groups = [g_pos, g_rot, g_scale, g_opacity, g_sh];
-            for (g, gr) in groups.iter().enumerate() {
+            for (k, gr) in groups.iter().enumerate() {
+                // The SH gradient belongs to this view's state.
+                let g = if k < GROUPS.len() { k } else { GROUPS.len() + j };
                 let gi = self
                     .adam
                     .group_index(&group_name(c, g))
@@ -613,7 +629,7 @@ impl Trainer {
                     }
                 }
             }
-            for g in 0..GROUPS.len() {
+            for g in 0..comp.groups() {
                 let gi = self.adam.group_index(&group_name(c, g)).unwrap();
                 self.adam.append_points(gi, grow.len());
             }
@@ -623,7 +639,7 @@ impl Trainer {
                 .collect();
             if keep.len() < comp.len() {
                 comp.gather(&keep);
-                for g in 0..GROUPS.len() {
+                for g in 0..comp.groups() {
                     let gi = self.adam.group_index(&group_name(c, g)).unwrap();
                     self.adam.keep_points(gi, &keep);
                 }
@@ -637,22 +653,19 @@ impl Trainer {
     /// Appends new surfels to component `c` (completion, eq. completion-mask), with fresh
     /// optimiser moments.
     pub fn add_surfels(&mut self, c: usize, new: &Surfels) {
-        let raw = RawComponent::from_component(&Component {
-            name: String::new(),
-            id: 0,
-            surfels: new.clone(),
-        });
         let comp = &mut self.model.components[c];
+        let raw = RawComponent::from_component(
+            &Component {
+                name: String::new(),
+                id: 0,
+                surfels: new.clone(),
+            },
+            comp.sh.len(),
+        );
         assert_eq!(raw.sh_degree, comp.sh_degree, "completion surfels share the SH degree");
-        for g in 0..GROUPS.len() {
-            let src = match g {
-                0 => &raw.position,
-                1 => &raw.rotation,
-                2 => &raw.log_scale,
-                3 => &raw.logit_opacity,
-                _ => &raw.sh,
-            };
-            comp.group_mut(g).extend_from_slice(src);
+        let mut raw = raw;
+        for g in 0..comp.groups() {
+            comp.group_mut(g).extend_from_slice(raw.group_mut(g));
             let gi = self.adam.group_index(&group_name(c, g)).unwrap();
             self.adam.append_points(gi, raw.len());
         }
@@ -669,7 +682,7 @@ pub fn render_state(model: &Model, j: usize, camera: &crate::scene::Camera) -> s
     let surfels: Vec<Surfels> = model
         .components
         .par_iter()
-        .map(RawComponent::surfels)
+        .map(|c| c.surfels(j))
         .collect();
     splat::forward(&model.placements(&surfels, j), camera).image
 }
