@@ -350,6 +350,17 @@ fn demo() {
                 .map(|t| errors(&t, &gt, c))
                 .unwrap_or((f32::NAN, f32::NAN));
             let (aa, ad) = errors(&poses[j][o], &gt, c);
+            // Translation error of the Rigid itself (at the world origin), as run.rs reports it.
+            let at0 = |t: &Rigid| {
+                100.0
+                    * (Vec3::from_array(t.translation) - Vec3::from_array(gt.translation)).length()
+            };
+            eprintln!(
+                "state {k} {:>5}: origin translation error register {:5.1} cm, align {:5.1} cm",
+                obj.name,
+                initial[j][o].map(|t| at0(&t)).unwrap_or(f32::NAN),
+                at0(&poses[j][o])
+            );
             let s_gt = score_pose(&refs[o], ids[o], &train[j], &gt, &opts);
             let s_est = score_pose(&refs[o], ids[o], &train[j], &poses[j][o], &opts);
             eprintln!(
