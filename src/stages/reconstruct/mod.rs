@@ -1,8 +1,10 @@
 //! Stage 1, reconstruct (paper §"Interactive Scene Reconstruction"): initialisation from RGB-D
 //! ([`init`]), object poses per state ([`register`]), the background/object graph cut
 //! ([`segment`], [`maxflow`]), completion (eq. completion-mask, [`completion`]), the training
-//! loop ([`train`]) and the stage as a function of files ([`run`]).
+//! loop ([`train`]) and the stage as a function of files ([`run`]); [`align`] estimates object
+//! poses by rendering, an alternative to [`register`].
 
+pub mod align;
 pub mod completion;
 pub mod init;
 pub mod maxflow;
