@@ -83,7 +83,13 @@ fn camera(angle: f32, w: u32, h: u32) -> Camera {
 }
 
 /// What a capture of the components placed by `pose` would hold.
-fn observe(components: &[Component], pose: Rigid, state: usize, view: usize, cam: Camera) -> Observation {
+fn observe(
+    components: &[Component],
+    pose: Rigid,
+    state: usize,
+    view: usize,
+    cam: Camera,
+) -> Observation {
     let place = [
         Placement::world(&components[0].surfels),
         Placement {
@@ -100,7 +106,9 @@ fn observe(components: &[Component], pose: Rigid, state: usize, view: usize, cam
         view,
         camera: cam,
         rgb: full.color.clone(),
-        depth: (0..n).map(|i| if covered(i) { full.depth[i] } else { 0.0 }).collect(),
+        depth: (0..n)
+            .map(|i| if covered(i) { full.depth[i] } else { 0.0 })
+            .collect(),
         normal: (0..n)
             .map(|i| {
                 let v = Vec3::from_array(full.normal[i]);
@@ -166,7 +174,10 @@ fn poses_are_recovered_from_splatting_gradients() {
     let start = splat::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
     let (e_t0, e_r0) = (distance(&start, &truth), angle_deg(&start, &truth));
     let model = Model {
-        components: comps.iter().map(|c| RawComponent::from_component(c, 2)).collect(),
+        components: comps
+            .iter()
+            .map(|c| RawComponent::from_component(c, 2))
+            .collect(),
         poses: vec![vec![Rigid::IDENTITY], vec![start]],
     };
     let mut trainer = Trainer::new(frozen_surfels(600), model);
@@ -180,7 +191,10 @@ fn poses_are_recovered_from_splatting_gradients() {
     // Started 2.5 cm / 2.9° off (measured end: 0.5 mm / 0.22°). The captures are exact renders,
     // so the optimum is the truth; what is left is Adam's step size (lr 1e-3 m, 2e-3 rad)
     // jittering about it: bounded by a few mm and a few tenths of a degree.
-    assert!(e_t < 0.005 && e_r < 0.5, "from {e_t0:.4} m / {e_r0:.2}° to {e_t:.4} m / {e_r:.2}°");
+    assert!(
+        e_t < 0.005 && e_r < 0.5,
+        "from {e_t0:.4} m / {e_r0:.2}° to {e_t:.4} m / {e_r:.2}°"
+    );
     // The reference state's poses never move.
     assert_eq!(trainer.model.poses[0][0], Rigid::IDENTITY);
 }
@@ -198,7 +212,15 @@ fn psnr(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
 fn training_repairs_a_corrupted_reconstruction() {
     let comps = scene();
     let obs: Vec<Vec<Observation>> = vec![(0..7)
-        .map(|v| observe(&comps, Rigid::IDENTITY, 0, v, camera(v as f32 * 0.9, 64, 48)))
+        .map(|v| {
+            observe(
+                &comps,
+                Rigid::IDENTITY,
+                0,
+                v,
+                camera(v as f32 * 0.9, 64, 48),
+            )
+        })
         .collect()];
     let held = observe(&comps, Rigid::IDENTITY, 0, 99, camera(0.45, 64, 48));
     // Corrupt: colours scrambled, centres jittered by up to 1 cm, opacities halved.
@@ -207,7 +229,11 @@ fn training_repairs_a_corrupted_reconstruction() {
     for c in &mut bad {
         let s = &mut c.surfels;
         for i in 0..s.len() {
-            s.sh[i] = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+            s.sh[i] = [
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            ];
             for k in 0..3 {
                 s.position[i][k] += rng.range(-0.01, 0.01);
             }
@@ -215,10 +241,14 @@ fn training_repairs_a_corrupted_reconstruction() {
         }
     }
     let model = Model {
-        components: bad.iter().map(|c| RawComponent::from_component(c, 1)).collect(),
+        components: bad
+            .iter()
+            .map(|c| RawComponent::from_component(c, 1))
+            .collect(),
         poses: vec![vec![Rigid::IDENTITY]],
     };
-    let render = |m: &Model| lightfuse::stages::reconstruct::train::render_state(m, 0, &held.camera);
+    let render =
+        |m: &Model| lightfuse::stages::reconstruct::train::render_state(m, 0, &held.camera);
     let before = psnr(&render(&model).color, &held.rgb);
     let settings = Settings {
         iterations: 400,
@@ -236,6 +266,9 @@ fn training_repairs_a_corrupted_reconstruction() {
     eprintln!("held-out PSNR {before:.2} -> {after:.2} dB, loss {first:.4} -> {last:.4}");
     // A view no iteration saw must improve a lot: measured 14.9 -> 28.8 dB here; +10 dB leaves
     // room for other seeds and thread counts without letting a loop that barely learns pass.
-    assert!(after > before + 10.0, "held-out PSNR {before:.2} -> {after:.2} dB");
+    assert!(
+        after > before + 10.0,
+        "held-out PSNR {before:.2} -> {after:.2} dB"
+    );
     assert!(last < 0.5 * first, "loss {first} -> {last}");
 }

@@ -78,7 +78,6 @@ pub struct ReconstructArgs {
     pub seed: u64,
 }
 
-
 #[derive(clap::Args, Debug)]
 #[command(group(clap::ArgGroup::new("placement").required(true).multiple(true).args(["state", "layout"])))]
 pub struct RenderArgs {
@@ -482,7 +481,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
         settings.iterations = n;
     }
     settings.seed = a.seed;
-    if !(a.voxel > 0.0 && a.voxel.is_finite()) || !(a.tau_d > 0.0 && a.tau_d.is_finite()) {
+    if !(a.voxel > 0.0 && a.voxel.is_finite() && a.tau_d > 0.0 && a.tau_d.is_finite()) {
         return Err(Error::Usage(
             "--voxel and --tau-d: expected positive lengths in metres".into(),
         ));
@@ -498,7 +497,10 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
         tau_d: a.tau_d,
     })?;
     if cli.json {
-        println!("{}", serde_json::to_string_pretty(&report).expect("report serialises"));
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&report).expect("report serialises")
+        );
     } else if !cli.quiet {
         eprintln!(
             "wrote {}: {} surfels in {:.0} s; held-out PSNR {:.2} dB (sRGB, covered pixels, {} views), median depth error {:.3} m ({:.2}% of the scene)",

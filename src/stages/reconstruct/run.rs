@@ -12,7 +12,7 @@
 //!    `log.jsonl` (losses) and `checkpoint.json` (resumable with `--resume`).
 
 use super::train::{render_state, Losses, Model, RawComponent, Settings, Trainer};
-use super::{completion, init, register, segment};
+use super::{align, completion, init, register, segment};
 use crate::error::{Error, Result};
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
@@ -75,9 +75,11 @@ fn progress(quiet: bool, len: u64, msg: &str) -> indicatif::ProgressBar {
     }
     let bar = indicatif::ProgressBar::new(len);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg:12} [{bar:30}] {pos}/{len} {elapsed} eta {eta} {prefix}")
-            .expect("valid template")
-            .progress_chars("=> "),
+        indicatif::ProgressStyle::with_template(
+            "{msg:12} [{bar:30}] {pos}/{len} {elapsed} eta {eta} {prefix}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
     );
     bar.set_message(msg.to_string());
     bar
@@ -111,7 +113,8 @@ fn checkpoint_path(out: &Path) -> PathBuf {
 }
 
 fn write_checkpoint(out: &Path, trainer: &Trainer) -> Result<()> {
-    let bytes = serde_json::to_vec(trainer).map_err(|e| Error::Usage(format!("checkpoint: {e}")))?;
+    let bytes =
+        serde_json::to_vec(trainer).map_err(|e| Error::Usage(format!("checkpoint: {e}")))?;
     let mut files = AtomicFiles::new();
     files.write(&checkpoint_path(out), &bytes)?;
     files.commit()
@@ -141,7 +144,7 @@ fn scene_of(model: &Model, dataset: &Dataset, train: &[usize]) -> Scene {
 
 /// Moves surfels between components to match the graph cut's labels (all components live in
 /// the reference state's frame, so a move is a copy).
-fn relabel(components: &mut Vec<Component>, labels: &[u8]) -> usize {
+fn relabel(components: &mut [Component], labels: &[u8]) -> usize {
     let ids: Vec<u32> = components.iter().map(|c| c.id).collect();
     let mut moved = 0;
     let mut out: Vec<crate::scene::Surfels> = components
@@ -189,7 +192,10 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
     let dataset = Dataset::read(&opts.dataset)?;
     let train_states = dataset.train_states();
-    say(opts.quiet, &format!("reading {} training states", train_states.len()));
+    say(
+        opts.quiet,
+        &format!("reading {} training states", train_states.len()),
+    );
     let (train, held) = split(dataset.training_observations()?);
     for (j, t) in train.iter().enumerate() {
         if t.is_empty() {
@@ -210,96 +216,126 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         })
         .collect();
 
-    let mut trainer = if opts.resume && checkpoint_path(&opts.out).is_file() {
-        let path = checkpoint_path(&opts.out);
-        let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-        let t: Trainer = serde_json::from_slice(&bytes)
-            .map_err(|e| Error::invalid(&path, "checkpoint", format!("expected a LightFuse checkpoint: {e}")))?;
-        t.adam.validate(&path)?;
-        if t.model.poses.len() != train.len() || t.model.components.len() != objects.len() + 1 {
-            return Err(Error::invalid(&path, "model", "expected a checkpoint of this dataset's states and objects"));
-        }
-        say(opts.quiet, &format!("resuming at iteration {}", t.iteration));
-        let mut t = t;
-        // The run's length may be extended (the position schedule keeps its original span).
-        t.settings.iterations = opts.settings.iterations;
-        t
-    } else {
-        // Initialisation (item 2): every training view back-projected.
-        let bopts = init::BackprojectOptions::default();
-        let clouds: Vec<init::PointCloud> = train
-            .iter()
-            .map(|views| {
-                let mut c = init::PointCloud::default();
-                for o in views {
-                    c.extend(&init::backproject(o, &bopts));
-                }
-                c
-            })
-            .collect();
-        // Poses (item 4).
-        let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
-        let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
-            train_states
-                .iter()
-                .map(|&k| {
-                    objects
-                        .iter()
-                        .map(|o| {
-                            let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
-                            let pose = dataset.object_pose(k, &o.name)?;
-                            Ok(pose.compose(&init::inverse(&ref_pose)))
-                        })
-                        .collect::<Result<Vec<_>>>()
-                })
-                .collect::<Result<_>>()?
-        } else {
-            let t = Instant::now();
-            let reg = register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
-            let mut out = Vec::new();
-            for (j, row) in reg.iter().enumerate() {
-                let mut poses = Vec::new();
-                for (o, r) in row.iter().enumerate() {
-                    match r {
-                        Some(r) => poses.push(r.transform),
-                        None => {
-                            say(opts.quiet, &format!(
-                                "warning: object {:?} is too sparsely seen in state {:?} to register; it keeps its reference pose there",
-                                objects[o].name, dataset.states[train_states[j]].name));
-                            poses.push(Rigid::IDENTITY);
-                        }
-                    }
-                }
-                out.push(poses);
+    let mut trainer =
+        if opts.resume && checkpoint_path(&opts.out).is_file() {
+            let path = checkpoint_path(&opts.out);
+            let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+            let t: Trainer = serde_json::from_slice(&bytes).map_err(|e| {
+                Error::invalid(
+                    &path,
+                    "checkpoint",
+                    format!("expected a LightFuse checkpoint: {e}"),
+                )
+            })?;
+            t.adam.validate(&path)?;
+            if t.model.poses.len() != train.len() || t.model.components.len() != objects.len() + 1 {
+                return Err(Error::invalid(
+                    &path,
+                    "model",
+                    "expected a checkpoint of this dataset's states and objects",
+                ));
             }
-            say(opts.quiet, &format!("registered {} objects in {} states in {:.1} s", objects.len(), train.len(), t.elapsed().as_secs_f64()));
-            out
-        };
-        let iopts = init::InitOptions {
-            voxel: opts.voxel,
-            ..Default::default()
-        };
-        let mut components = init::initial_components(&clouds, &objects, &poses, &iopts);
-        // Decomposition (item 3) over the reference state.
-        let all = concat(&components);
-        let seg = segment::segment(
-            &segment::SurfelPoints::from_surfels(&all),
-            &train[0],
-            &segment::SegmentParams::default(),
-        )?;
-        let moved = relabel(&mut components, &seg.labels);
-        say(opts.quiet, &format!(
-            "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
-            all.len(), moved, seg.energy_before, seg.energy_after));
-        let model = Model {
-            components: components
+            say(
+                opts.quiet,
+                &format!("resuming at iteration {}", t.iteration),
+            );
+            let mut t = t;
+            // The run's length may be extended (the position schedule keeps its original span).
+            t.settings.iterations = opts.settings.iterations;
+            t
+        } else {
+            // Initialisation (item 2): every training view back-projected.
+            let bopts = init::BackprojectOptions::default();
+            let clouds: Vec<init::PointCloud> = train
                 .iter()
-                .map(|c| RawComponent::from_component(c, poses.len()))
-                .collect(),
-            poses,
+                .map(|views| {
+                    let mut c = init::PointCloud::default();
+                    for o in views {
+                        c.extend(&init::backproject(o, &bopts));
+                    }
+                    c
+                })
+                .collect();
+            // Poses (item 4).
+            let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
+            let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
+                train_states
+                    .iter()
+                    .map(|&k| {
+                        objects
+                            .iter()
+                            .map(|o| {
+                                let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
+                                let pose = dataset.object_pose(k, &o.name)?;
+                                Ok(pose.compose(&init::inverse(&ref_pose)))
+                            })
+                            .collect::<Result<Vec<_>>>()
+                    })
+                    .collect::<Result<_>>()?
+            } else {
+                let t = Instant::now();
+                let reg =
+                    register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
+                // The point-cloud registrations are candidates for the analysis-by-synthesis search,
+                // which scores poses by rendering the object into every view of the state.
+                let initial: Vec<Vec<Option<Rigid>>> = reg
+                    .iter()
+                    .map(|row| row.iter().map(|r| r.map(|r| r.transform)).collect())
+                    .collect();
+                let refs = align::median_footprint(&train[0], &ids)
+                    .map(|voxel| align::reference_surfels(&train[0], &ids, voxel));
+                let out: Vec<Vec<Rigid>> = match refs {
+                    Some(refs) => align::object_poses_by_rendering(
+                        &refs,
+                        &ids,
+                        &train,
+                        &initial,
+                        &align::AlignOptions::default(),
+                    ),
+                    None => initial
+                        .iter()
+                        .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
+                        .collect(),
+                };
+                say(
+                    opts.quiet,
+                    &format!(
+                        "registered {} objects in {} states in {:.1} s",
+                        objects.len(),
+                        train.len(),
+                        t.elapsed().as_secs_f64()
+                    ),
+                );
+                out
+            };
+            let iopts = init::InitOptions {
+                voxel: opts.voxel,
+                ..Default::default()
+            };
+            let mut components = init::initial_components(&clouds, &objects, &poses, &iopts);
+            // Decomposition (item 3) over the reference state.
+            let all = concat(&components);
+            let seg = segment::segment(
+                &segment::SurfelPoints::from_surfels(&all),
+                &train[0],
+                &segment::SegmentParams::default(),
+            )?;
+            let moved = relabel(&mut components, &seg.labels);
+            say(
+                opts.quiet,
+                &format!(
+            "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
+            all.len(), moved, seg.energy_before, seg.energy_after),
+            );
+            let model = Model {
+                components: components
+                    .iter()
+                    .map(|c| RawComponent::from_component(c, poses.len()))
+                    .collect(),
+                poses,
+            };
+            Trainer::new(opts.settings.clone(), model)
         };
-        Trainer::new(opts.settings.clone(), model)
-    };
 
     // Training (item 6) with completion (item 5).
     let views: Vec<Vec<&Observation>> = train.iter().map(|v| v.iter().collect()).collect();
@@ -318,7 +354,10 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     while trainer.iteration < total {
         if trainer.iteration == completion_at && completion_at > 0 {
             let added = complete(&mut trainer, &train, opts)?;
-            bar.println(format!("completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)", opts.tau_d));
+            bar.println(format!(
+                "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
+                opts.tau_d
+            ));
         }
         let l = trainer.step(&views);
         window.total += l.total;
@@ -339,7 +378,11 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                 "depth_normal": window.depth_normal / k,
             });
             writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
-            bar.set_prefix(format!("loss {:.4} · {} surfels", window.total / k, trainer.model.surfel_count()));
+            bar.set_prefix(format!(
+                "loss {:.4} · {} surfels",
+                window.total / k,
+                trainer.model.surfel_count()
+            ));
             window = Losses::default();
             window_n = 0;
         }
@@ -351,7 +394,15 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
 
     let scene = scene_of(&trainer.model, &dataset, &train_states);
     crate::io::write_scene(&scene, &opts.out.join("scene.glb"))?;
-    let report = evaluate(&trainer.model, &dataset, &train_states, &train, &held, opts, t0)?;
+    let report = evaluate(
+        &trainer.model,
+        &dataset,
+        &train_states,
+        &train,
+        &held,
+        opts,
+        t0,
+    )?;
     let mut files = AtomicFiles::new();
     files.write(
         &opts.out.join("report.json"),
@@ -376,7 +427,10 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
             let mask = completion::completion_mask(&img.depth, &o.depth, opts.tau_d)?;
             let seeds = completion::seed_points(o, &mask)?;
             for i in 0..seeds.len() {
-                let c = ids.iter().position(|&id| id == seeds.mask[i] as u32).unwrap_or(0);
+                let c = ids
+                    .iter()
+                    .position(|&id| id == seeds.mask[i] as u32)
+                    .unwrap_or(0);
                 let mut p = seeds.position[i];
                 let mut n = seeds.normal[i];
                 if c > 0 {
@@ -384,7 +438,14 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
                     p = inv.transform_point(p);
                     n = (inv.quat() * Vec3::from_array(n)).to_array();
                 }
-                per_component[c].push(p, n, seeds.rgb[i], seeds.mask[i], j as u32, seeds.footprint[i]);
+                per_component[c].push(
+                    p,
+                    n,
+                    seeds.rgb[i],
+                    seeds.mask[i],
+                    j as u32,
+                    seeds.footprint[i],
+                );
             }
         }
     }
@@ -445,7 +506,10 @@ fn evaluate(
         }
     }
     depth_err.sort_by(|a, b| a.total_cmp(b));
-    let median = depth_err.get(depth_err.len() / 2).copied().unwrap_or(f64::NAN);
+    let median = depth_err
+        .get(depth_err.len() / 2)
+        .copied()
+        .unwrap_or(f64::NAN);
     // Scene extent from the training captures' points.
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for views in train {
@@ -476,7 +540,8 @@ fn evaluate(
                 object: obj.name.clone(),
                 rotation_deg: rotation_angle_deg(&gt, &est),
                 translation_cm: 100.0
-                    * (Vec3::from_array(gt.translation) - Vec3::from_array(est.translation)).length(),
+                    * (Vec3::from_array(gt.translation) - Vec3::from_array(est.translation))
+                        .length(),
                 fitness: None,
             });
         }

@@ -14,11 +14,11 @@
 //! the reference depth, 1 − n̂·n* to the reference normals and, after a warm-up, 2DGS's depth-
 //! normal self-consistency (eqs. reconstruction-depth, reconstruction-normal).
 
+use crate::io::dataset::Observation;
 use crate::optim::{self, Adam, Schedule};
+use crate::scene::synthetic::SplitMix;
 use crate::scene::{Component, Rigid, Surfels};
 use crate::splat::{self, ImageGrad, Placement};
-use crate::io::dataset::Observation;
-use crate::scene::synthetic::SplitMix;
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -466,10 +466,12 @@ impl Trainer {
         // eq. alpha-coverage against the capture's coverage (1 where it saw a surface).
         let inv = 1.0 / n.max(1) as f32;
         let mut alpha_loss = 0.0;
-        for i in 0..n {
-            let d = img.alpha[i] - valid[i];
+        for ((g, a), v) in grad.alpha.iter_mut().zip(&img.alpha).zip(&valid) {
+            let d = a - v;
             alpha_loss += d.abs();
-            grad.alpha[i] += s.lambda_alpha * inv * d.signum() * (d != 0.0) as i32 as f32;
+            if d != 0.0 {
+                *g += s.lambda_alpha * inv * d.signum();
+            }
         }
         losses.alpha = s.lambda_alpha * alpha_loss * inv;
 
@@ -486,7 +488,8 @@ impl Trainer {
             }
         }
         if self.iteration >= s.depth_normal_from {
-            let dn = optim::depth_normal_loss(&img.depth, &obs.camera, &img.normal, Some(&img.alpha));
+            let dn =
+                optim::depth_normal_loss(&img.depth, &obs.camera, &img.normal, Some(&img.alpha));
             losses.depth_normal = s.lambda_depth_normal * dn.value;
             for i in 0..n {
                 grad.depth[i] += s.lambda_depth_normal * dn.grad_depth[i];
@@ -544,7 +547,11 @@ impl Trainer {
             let groups = [g_pos, g_rot, g_scale, g_opacity, g_sh];
             for (k, gr) in groups.iter().enumerate() {
                 // The SH gradient belongs to this view's state.
-                let g = if k < GROUPS.len() { k } else { GROUPS.len() + j };
+                let g = if k < GROUPS.len() {
+                    k
+                } else {
+                    GROUPS.len() + j
+                };
                 let gi = self
                     .adam
                     .group_index(&group_name(c, g))
@@ -662,7 +669,10 @@ impl Trainer {
             },
             comp.sh.len(),
         );
-        assert_eq!(raw.sh_degree, comp.sh_degree, "completion surfels share the SH degree");
+        assert_eq!(
+            raw.sh_degree, comp.sh_degree,
+            "completion surfels share the SH degree"
+        );
         let mut raw = raw;
         for g in 0..comp.groups() {
             comp.group_mut(g).extend_from_slice(raw.group_mut(g));
@@ -679,10 +689,6 @@ impl Trainer {
 
 /// Renders training state `j` of the model for `camera` (activated once, in parallel).
 pub fn render_state(model: &Model, j: usize, camera: &crate::scene::Camera) -> splat::SplatImage {
-    let surfels: Vec<Surfels> = model
-        .components
-        .par_iter()
-        .map(|c| c.surfels(j))
-        .collect();
+    let surfels: Vec<Surfels> = model.components.par_iter().map(|c| c.surfels(j)).collect();
     splat::forward(&model.placements(&surfels, j), camera).image
 }
