@@ -13,7 +13,7 @@ test state) or ``--cameras cameras.json`` (``{"frames": [...]}`` with ``transfor
 ``fl_x, fl_y, cx, cy, w, h``).
 
 With ``--dataset`` and ``--state``, defaults come from the dataset: the state's environment, its
-render seed, and the generator's spp and bounces; so rendering a state's own layout reproduces
+render seed, and the generator's spp, bounces and denoising; so rendering a state's own layout reproduces
 its images.  ``--max-bounces 1`` matches a one-bounce estimator.
 
 Example::
@@ -55,7 +55,8 @@ def parse_args(argv):
     p.add_argument("--spp", type=int, help="samples per pixel (default: the dataset's, else 64)")
     p.add_argument("--max-bounces", type=int, help="max light bounces (default: the dataset's, else 4)")
     p.add_argument("--seed", type=int, help="seed; frame i uses frame_seed(seed, i) (default: the state's)")
-    p.add_argument("--denoise", action="store_true", help="OpenImageDenoise the RGB")
+    p.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
+                   help="OpenImageDenoise the RGB (default: as the dataset was generated, else off)")
     p.add_argument("--rgb-only", action="store_true", help="skip depth/normal/mask/albedo")
     p.add_argument("--threads", type=int, default=2, help="Cycles CPU threads (default 2)")
     p.add_argument("--out", required=True, help="output folder")
@@ -104,6 +105,7 @@ def main(argv=None):
     spp = a.spp or gen.get("spp", 64)
     bounces = a.max_bounces if a.max_bounces is not None else gen.get("max_bounces", 4)
     seed = a.seed if a.seed is not None else (run or {}).get("render_seed", 0)
+    denoise = a.denoise if a.denoise is not None else bool(gen.get("denoise", False))
     if a.env:
         env_path = lf.resolve_hdri(a.env, None, "--env")
     elif run and run.get("environment"):
@@ -125,7 +127,7 @@ def main(argv=None):
         cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
         sc.collection.objects.link(cam)
         sc.camera = cam
-    lf.setup_render(spp, bounces, a.denoise, a.threads)
+    lf.setup_render(spp, bounces, denoise, a.threads)
     lf.setup_world(env_path, a.env_rotation, a.env_strength)
 
     out = os.path.abspath(a.out)
@@ -156,7 +158,8 @@ def main(argv=None):
         shutil.rmtree(tmp, ignore_errors=True)
     lf.write_json(os.path.join(out, "frames.json"), {
         "frames": out_frames, "environment": os.path.abspath(env_path), "environment_rotation": a.env_rotation,
-        "layout": {k: lf.rows(v) for k, v in layout.items()}, "spp": spp, "max_bounces": bounces, "seed": seed})
+        "layout": {k: lf.rows(v) for k, v in layout.items()}, "spp": spp, "max_bounces": bounces, "denoise": denoise,
+        "seed": seed})
     print(f"[render_layout] wrote {len(out_frames)} frames to {out} in {time.time() - t0:.1f} s", flush=True)
 
 

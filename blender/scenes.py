@@ -227,6 +227,22 @@ def obj_parts(kind: str) -> list:
     raise KeyError(kind)
 
 
+# Rotations about axes through an object's origin (its base centre) that leave its shape *and*
+# appearance unchanged, in its Y-up frame (Blender's +Z is +Y): {"axis", "order"}, order 0 =
+# continuous, n = n-fold (as BOP's symmetries_continuous/discrete). Written to dataset.json for
+# evaluation only: a pose error forgives them (src/eval/pose.rs), since no image can tell them
+# apart. Only symmetries checked against obj_parts and MATERIALS are listed; kinds absent have none.
+SYMMETRIES = {
+    # Blender's checker (object coordinates, cells of 1/scale with a boundary through the axis)
+    # takes parity(|floor(x)|) + parity(|floor(y)|); a half turn about +Z flips both parities.
+    "ball": [{"axis": [0, 1, 0], "order": 2}],
+    "pot": [{"axis": [0, 1, 0], "order": 2}],  # plain steel body, one handle each side
+    "vase": [{"axis": [0, 1, 0], "order": 0}],  # plain glossy solid of revolution
+    "ring": [{"axis": [0, 1, 0], "order": 0}],  # plain gold torus about +Z
+    "small_ball": [{"axis": [0, 1, 0], "order": 0}],  # plain sphere (its centre is off the origin)
+}
+
+
 def table(name, w, d, h, x, y, mat="wood", top=0.04, leg=0.05):
     parts = [("box", dict(size=(w, d, top), loc=(x, y, h - top / 2)), mat)]
     for sx in (-1, 1):
@@ -321,7 +337,8 @@ def build_scene(preset: str) -> dict:
         radius = float(np.max(np.linalg.norm(co[:, :2], axis=1)))
         height = float(co[:, 2].max())
         movables.append((name, ob, radius, height))
-    return dict(size=S, surfaces=surfaces, obstacles=obstacles, movables=movables)
+    symmetries = {name: SYMMETRIES.get(kind, []) for name, kind in P["objects"]}
+    return dict(size=S, surfaces=surfaces, obstacles=obstacles, movables=movables, symmetries=symmetries)
 
 
 def _circle_rect_overlap(c, r, rect):

@@ -63,7 +63,7 @@ def test_one_bounce_render_matches_cycles(oracle):
     root, ds = oracle["root"], oracle["dataset"]
     cy, ours = root / "cycles", root / "lightfuse"
     run_script("render_layout.py", "--dataset", ds, "--state", "state0", "--env", oracle["env"],
-               "--spp", CYCLES_SPP, "--max-bounces", "1", "--rgb-only", "--quiet", "--out", cy)
+               "--spp", CYCLES_SPP, "--max-bounces", "1", "--no-denoise", "--rgb-only", "--quiet", "--out", cy)
     lf("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", LIGHTFUSE_SPP,
        "--out", ours)
     r = compare(cy, ours)

@@ -1,5 +1,6 @@
-//! Evaluation against ground truth: image and depth metrics (reports come later).
+//! Evaluation against ground truth: image and depth metrics, symmetry-aware object pose error.
 
 pub mod metrics;
+pub mod pose;
 
 pub use metrics::{depth_error, psnr, psnr_srgb, srgb_encode, ssim, ssim_srgb, DepthError};

@@ -15,6 +15,15 @@ pub const DATASET_FORMAT: &str = "lightfuse-dataset/1";
 pub struct DatasetObject {
     pub id: u32,
     pub name: String,
+    /// Ground truth, evaluation only: the object's own frame (origin on its symmetry axes, e.g.
+    /// the centre of its base) in the reference state's world.
+    #[serde(default)]
+    pub reference_pose: Option<[[f32; 4]; 4]>,
+    /// Ground truth, evaluation only: rotations about axes through the object's origin that
+    /// leave its shape and appearance unchanged (in its frame), so a pose error forgives them
+    /// ([`crate::eval::pose`]).
+    #[serde(default)]
+    pub symmetries: Vec<crate::eval::pose::Symmetry>,
 }
 
 #[derive(Deserialize, Debug, Clone)]
@@ -118,6 +127,20 @@ impl Dataset {
                     "expected a non-empty name other than \"background\"",
                 ));
             }
+            if let Some(rows) = &o.reference_pose {
+                Rigid::from_rows(rows)
+                    .map_err(|m| Error::invalid(&d.file, format!("{field}.reference_pose"), m))?;
+            }
+            for (k, s) in o.symmetries.iter().enumerate() {
+                let len = glam::Vec3::from_array(s.axis).length();
+                if !(len.is_finite() && len > 0.0) || s.order == 1 {
+                    return Err(Error::invalid(
+                        &d.file,
+                        format!("{field}.symmetries[{k}]"),
+                        "expected a non-zero finite axis and order 0 (continuous) or >= 2",
+                    ));
+                }
+            }
             if let Some(j) = d.objects[..i]
                 .iter()
                 .position(|p| p.id == o.id || p.name == o.name)
@@ -173,6 +196,15 @@ impl Dataset {
             Some(rows) => Rigid::from_rows(rows).map_err(|m| {
                 Error::invalid(&self.file, format!("states[{k}].object_poses.{object}"), m)
             }),
+        }
+    }
+
+    /// Object `o`'s frame in the reference world (ground truth; identity when not recorded).
+    pub fn object_frame(&self, o: usize) -> Result<Rigid> {
+        match &self.objects[o].reference_pose {
+            None => Ok(Rigid::IDENTITY),
+            Some(rows) => Rigid::from_rows(rows)
+                .map_err(|m| Error::invalid(&self.file, format!("objects[{o}].reference_pose"), m)),
         }
     }
 
