@@ -175,26 +175,8 @@ fn camera() -> Camera {
 }
 
 fn camera_of(w: u32, h: u32) -> Camera {
-    let eye = Vec3::new(0.3, 1.6, 3.6);
-    let forward = (Vec3::new(0.0, 0.8, -2.0) - eye).normalize();
-    let right = forward.cross(Vec3::Y).normalize();
-    let up = right.cross(forward);
-    let back = -forward;
     let fl = 0.5 * w as f32 / (0.5 * 70f32.to_radians()).tan();
-    Camera {
-        transform_matrix: [
-            [right.x, up.x, back.x, eye.x],
-            [right.y, up.y, back.y, eye.y],
-            [right.z, up.z, back.z, eye.z],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
-        fl_x: fl,
-        fl_y: fl,
-        cx: 0.5 * w as f32,
-        cy: 0.5 * h as f32,
-        w,
-        h,
-    }
+    Camera::look_at([0.3, 1.6, 3.6], [0.0, 0.8, -2.0], w, h, fl)
 }
 
 /// Visibility rays leaving random surfels (1 mm off the surface) into random directions of the

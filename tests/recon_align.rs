@@ -90,32 +90,12 @@ fn floor() -> Surfels {
     s
 }
 
-fn look_at(eye: Vec3, at: Vec3, w: u32, h: u32, f: f32) -> Camera {
-    let back = (eye - at).normalize();
-    let right = Vec3::Y.cross(back).normalize();
-    let up = back.cross(right);
-    Camera {
-        transform_matrix: [
-            [right.x, up.x, back.x, eye.x],
-            [right.y, up.y, back.y, eye.y],
-            [right.z, up.z, back.z, eye.z],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
-        fl_x: f,
-        fl_y: f,
-        cx: w as f32 / 2.0,
-        cy: h as f32 / 2.0,
-        w,
-        h,
-    }
-}
-
 fn cameras() -> Vec<Camera> {
     (0..6)
         .map(|i| {
             let a = i as f32 * std::f32::consts::TAU / 6.0 + 0.3;
             let eye = Vec3::new(1.2 * a.cos(), 0.8, 1.2 * a.sin());
-            look_at(eye, Vec3::new(0.0, 0.1, 0.0), 64, 48, 60.0)
+            Camera::look_at(eye.to_array(), [0.0, 0.1, 0.0], 64, 48, 60.0)
         })
         .collect()
 }
@@ -287,32 +267,20 @@ fn unseen_object_keeps_its_candidate() {
 #[ignore]
 fn demo() {
     use lightfuse::io::dataset::Dataset;
-    use lightfuse::stages::reconstruct::{init, register};
-    let path = std::path::Path::new("/work/main/data/demo/dataset/dataset.json");
+    use lightfuse::stages::reconstruct::{init, register, run};
+    let path =
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/demo/dataset/dataset.json");
     let ds = Dataset::read(path).or_else(|_| Dataset::read(path.parent().unwrap()));
     let Ok(ds) = ds else {
         eprintln!("demo dataset not found");
         return;
     };
-    let all = ds.training_observations().unwrap();
-    // As run.rs: view 0 of every HOLDOUT is held out.
-    let train: Vec<Vec<Observation>> = all
-        .into_iter()
-        .map(|v| v.into_iter().filter(|o| o.view % 8 != 0).collect())
-        .collect();
+    let (train, _held) = run::split(ds.training_observations().unwrap());
     let ids: Vec<u8> = ds.objects.iter().map(|o| o.id as u8).collect();
     let t0 = std::time::Instant::now();
     let bopts = init::BackprojectOptions::default();
-    let clouds: Vec<init::PointCloud> = train
-        .iter()
-        .map(|views| {
-            let mut c = init::PointCloud::default();
-            for o in views {
-                c.extend(&init::backproject(o, &bopts));
-            }
-            c
-        })
-        .collect();
+    let clouds: Vec<init::PointCloud> =
+        train.iter().map(|v| init::state_cloud(v, &bopts)).collect();
     let reg = register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
     let t_reg = t0.elapsed().as_secs_f64();
     let initial: Vec<Vec<Option<Rigid>>> = reg

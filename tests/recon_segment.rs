@@ -304,28 +304,6 @@ const BOX_LO: [f32; 3] = [-0.15, 0.0, -0.12];
 const BOX_HI: [f32; 3] = [0.15, 0.2, 0.12];
 const FLOOR: f32 = 0.6; // floor is |x|, |z| <= FLOOR at y = 0
 
-fn look_at(eye: [f32; 3], target: [f32; 3], w: u32, h: u32, fl: f32) -> Camera {
-    let e = glam::Vec3::from(eye);
-    let f = (glam::Vec3::from(target) - e).normalize();
-    let x = f.cross(glam::Vec3::Y).normalize();
-    let z = -f;
-    let y = z.cross(x);
-    Camera {
-        transform_matrix: [
-            [x.x, y.x, z.x, e.x],
-            [x.y, y.y, z.y, e.y],
-            [x.z, y.z, z.z, e.z],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
-        fl_x: fl,
-        fl_y: fl,
-        cx: w as f32 / 2.0,
-        cy: h as f32 / 2.0,
-        w,
-        h,
-    }
-}
-
 /// Ray parameter of the first hit and whether it is the box.
 fn cast(o: [f32; 3], d: [f32; 3]) -> Option<(f32, bool)> {
     let mut best: Option<(f32, bool)> = None;
@@ -384,7 +362,7 @@ fn cameras() -> Vec<Camera> {
         .map(|v| {
             let phi = v as f32 * std::f32::consts::TAU / 6.0 + 0.3;
             let eye = [1.4 * phi.cos(), 0.9 + 0.1 * (v % 2) as f32, 1.4 * phi.sin()];
-            look_at(eye, [0.0, 0.08, 0.0], 80, 60, 70.0)
+            Camera::look_at(eye, [0.0, 0.08, 0.0], 80, 60, 70.0)
         })
         .collect()
 }
@@ -528,7 +506,7 @@ fn graph_cut_segments_box_on_floor_better_than_argmax() {
 
 #[test]
 fn occluded_surfels_do_not_vote() {
-    let cam = look_at([0.0, 0.5, 1.2], [0.0, 0.1, 0.0], 80, 60, 70.0);
+    let cam = Camera::look_at([0.0, 0.5, 1.2], [0.0, 0.1, 0.0], 80, 60, 70.0);
     let obs = render(&cam, 0);
     let visible_floor = [0.0, 0.0, 0.4];
     let hidden_floor = [0.0, 0.0, -0.2]; // straight behind the box from this camera
@@ -580,7 +558,7 @@ fn neighbour_graph_matches_brute_force() {
 
 #[test]
 fn segment_rejects_mismatched_input() {
-    let cam = look_at([0.0, 0.5, 1.2], [0.0, 0.1, 0.0], 8, 6, 7.0);
+    let cam = Camera::look_at([0.0, 0.5, 1.2], [0.0, 0.1, 0.0], 8, 6, 7.0);
     let mut obs = render(&cam, 0);
     obs.mask.pop();
     let pts = SurfelPoints {
@@ -626,7 +604,7 @@ fn completion_mask_selects_surfaces_behind_the_render() {
 fn completion_seeds_lie_on_the_observed_surface() {
     // The render of the floor without the box stands for D̂, the capture with the box for D*:
     // the completion mask is the box's visible surface, and its seeds lie on the box.
-    let cam = look_at([0.9, 1.0, 1.2], [0.0, 0.08, 0.0], 80, 60, 70.0);
+    let cam = Camera::look_at([0.9, 1.0, 1.2], [0.0, 0.08, 0.0], 80, 60, 70.0);
     let reference = render(&cam, 0);
     let floor_only: Vec<f32> = {
         let m = cam.transform_matrix;

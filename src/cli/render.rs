@@ -87,12 +87,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
         let seed = a.seed.wrapping_add(k as u32);
         let (image, view_rays) = render_view(&estimator, &filter, &view.camera, a.spp, seed, &bar);
         rays += view_rays;
-        let exr = a.out.join(format!("{}.exr", view.name));
-        let png = a.out.join(format!("{}.png", view.name));
-        crate::io::exr::write_channels(&image, &exr)?;
-        write_png(&image, &png)?;
-        files.push(exr);
-        files.push(png);
+        files.extend(write_view(&image, &a.out, &view.name)?);
     }
     bar.finish_and_clear();
     let seconds = started.elapsed().as_secs_f64();
@@ -368,12 +363,7 @@ fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Resu
             height: img.height as usize,
             channels,
         };
-        let exr = a.out.join(format!("{}.exr", view.name));
-        let png = a.out.join(format!("{}.png", view.name));
-        crate::io::exr::write_channels(&image, &exr)?;
-        write_png(&image, &png)?;
-        files.push(exr);
-        files.push(png);
+        files.extend(write_view(&image, &a.out, &view.name)?);
     }
     let seconds = started.elapsed().as_secs_f64();
     if cli.json {
@@ -474,6 +464,15 @@ fn srgb8(v: f32) -> u8 {
         1.055 * v.powf(1.0 / 2.4) - 0.055
     };
     (s * 255.0 + 0.5) as u8
+}
+
+/// Writes `NAME.exr` (every channel) and `NAME.png` (sRGB preview) into `out`; returns both paths.
+fn write_view(image: &Channels, out: &Path, name: &str) -> Result<[PathBuf; 2]> {
+    let exr = out.join(format!("{name}.exr"));
+    let png = out.join(format!("{name}.png"));
+    crate::io::exr::write_channels(image, &exr)?;
+    write_png(image, &png)?;
+    Ok([exr, png])
 }
 
 fn write_png(image: &Channels, path: &Path) -> Result<()> {

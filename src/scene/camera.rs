@@ -17,6 +17,29 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// A pinhole camera at `eye` looking at `target` with +Y up (OpenGL axes: it looks down its
+    /// −Z), focal length `fl` pixels, principal point at the image centre.
+    pub fn look_at(eye: [f32; 3], target: [f32; 3], w: u32, h: u32, fl: f32) -> Camera {
+        let e = glam::Vec3::from(eye);
+        let back = (e - glam::Vec3::from(target)).normalize();
+        let right = glam::Vec3::Y.cross(back).normalize();
+        let up = back.cross(right);
+        Camera {
+            transform_matrix: [
+                [right.x, up.x, back.x, e.x],
+                [right.y, up.y, back.y, e.y],
+                [right.z, up.z, back.z, e.z],
+                [0.0, 0.0, 0.0, 1.0],
+            ],
+            fl_x: fl,
+            fl_y: fl,
+            cx: w as f32 / 2.0,
+            cy: h as f32 / 2.0,
+            w,
+            h,
+        }
+    }
+
     /// Checks the intrinsics and that the pose is rigid; `field` names the frame in errors.
     pub fn validate(&self, file: &Path, field: &str) -> Result<()> {
         for (name, v) in [("fl_x", self.fl_x), ("fl_y", self.fl_y)] {

@@ -180,6 +180,15 @@ pub fn pixel_to_world(cam: &Camera, x: usize, y: usize, z: f32) -> [f32; 3] {
     (r * camera_point(cam, x as f32 + 0.5, y as f32 + 0.5, z) + o).to_array()
 }
 
+/// Every view of one state back-projected into one cloud ([`backproject`]).
+pub fn state_cloud(views: &[Observation], opts: &BackprojectOptions) -> PointCloud {
+    let mut c = PointCloud::default();
+    for o in views {
+        c.extend(&backproject(o, opts));
+    }
+    c
+}
+
 /// Every pixel with depth > 0 of one observation as a world point (see the module docs).
 pub fn backproject(obs: &Observation, opts: &BackprojectOptions) -> PointCloud {
     let cam = &obs.camera;
