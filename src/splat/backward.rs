@@ -57,16 +57,25 @@ pub(crate) fn backward(f: &Forward, grad: &ImageGrad) -> Gradients {
         .for_each(|(tile, out)| backward_tile(f, grad, tile, out));
 
     let bins = &f.bins;
-    // Sums splat k's slots, in a fixed order.
-    let sum_slots = |k: usize| {
-        let mut g = [0.0f32; NG];
-        for &e in &bins.entry_of[bins.splat_start[k] as usize..bins.splat_start[k + 1] as usize] {
-            for (a, b) in g.iter_mut().zip(&slots[e as usize]) {
-                *a += b;
+    // Each drawn splat's slots summed in a fixed order (its tiles row-major, as `bin` lists
+    // them). Walking the splats in sorted order reads every tile's slice of `slots` forwards;
+    // the surfel loop below, in input order, then reads one sum per surfel.
+    const SUM_CHUNK: usize = 2048;
+    let mut sums = vec![[0.0f32; NG]; f.prepared.splats.len()];
+    sums.par_chunks_mut(SUM_CHUNK)
+        .enumerate()
+        .for_each(|(chunk, out)| {
+            for (j, g) in out.iter_mut().enumerate() {
+                let k = chunk * SUM_CHUNK + j;
+                let entries = bins.splat_start[k] as usize..bins.splat_start[k + 1] as usize;
+                for &e in &bins.entry_of[entries] {
+                    for (a, b) in g.iter_mut().zip(&slots[e as usize]) {
+                        *a += b;
+                    }
+                }
             }
-        }
-        g
-    };
+        });
+    drop(slots);
 
     let mut out = Gradients::default();
     for (c, pl) in f.components.iter().enumerate() {
@@ -89,13 +98,20 @@ pub(crate) fn backward(f: &Forward, grad: &ImageGrad) -> Gradients {
             .enumerate()
             .map(|(chunk, ((((gp, gq), gs), go), gsh))| {
                 let mut acc = [0.0f32; 6];
+                let sorted_of = &f.prepared.sorted_of[base + chunk * CHUNK..][..gp.len()];
                 for j in 0..gp.len() {
                     let i = chunk * CHUNK + j;
-                    let k = f.prepared.sorted_of[base + i];
+                    // The sums are read in a random order: ask for them ahead.
+                    if let Some(&ahead) = sorted_of.get(j + SUM_AHEAD) {
+                        if ahead != CULLED {
+                            prefetch_sum(&sums, ahead as usize);
+                        }
+                    }
+                    let k = sorted_of[j];
                     if k == CULLED {
                         continue;
                     }
-                    let sg = &sum_slots(k as usize);
+                    let sg = &sums[k as usize];
                     if sg.iter().all(|x| *x == 0.0) {
                         continue;
                     }
@@ -134,6 +150,26 @@ pub(crate) fn backward(f: &Forward, grad: &ImageGrad) -> Gradients {
         });
     }
     out
+}
+
+/// How many surfels ahead the surfel loop prefetches its gradient sums.
+const SUM_AHEAD: usize = 8;
+
+/// Asks for the (up to two) cache lines of `sums[k]`.
+#[inline(always)]
+fn prefetch_sum(sums: &[[f32; NG]], k: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(s) = sums.get(k) {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let p = s.as_ptr() as *const i8;
+        // SAFETY: prefetching is a hint that never faults, and `p` points into a live slice.
+        unsafe {
+            _mm_prefetch(p, _MM_HINT_T0);
+            _mm_prefetch(p.add(NG * 4 - 1), _MM_HINT_T0);
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (sums, k);
 }
 
 fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; NG]]) {
@@ -290,20 +326,10 @@ fn surfel_grad(
 
     // Colour: SH coefficients, and the view direction's dependence on the centre.
     let (raw, dir, len) = splat_color(view.o, w.p, sh_coeffs);
-    let mut f64_coeffs = [[0.0f64; 3]; 16];
-    for (dst, src) in f64_coeffs.iter_mut().zip(sh_coeffs) {
-        *dst = src.map(f64::from);
-    }
-    let d_color = [g[G_COLOR], g[G_COLOR + 1], g[G_COLOR + 2]].map(f64::from);
-    let g_a_sh = sh::backward(
-        dir,
-        len,
-        &f64_coeffs[..sh_coeffs.len().min(16)],
-        raw,
-        d_color,
-        d_sh,
-    );
-    g_a += Vec3::from_array(g_a_sh.map(|x| x as f32));
+    let d_color = [g[G_COLOR], g[G_COLOR + 1], g[G_COLOR + 2]];
+    let sh_coeffs = &sh_coeffs[..sh_coeffs.len().min(16)];
+    let g_a_sh = sh::backward_f32(dir, len, sh_coeffs, raw, d_color, d_sh);
+    g_a += Vec3::from_array(g_a_sh);
 
     // w_u = t_u / s_u.
     let g_tu = g_wu / su;
