@@ -6,7 +6,7 @@
 //! the tile lists; a second parallel pass sums each surfel's slots and carries the result
 //! through the projection to the surfel's parameters and its placement.
 
-use super::forward::{clip, tile_pixels, PREFETCH_AHEAD};
+use super::forward::{clip, row_bits, tile_pixels, PREFETCH_AHEAD};
 use super::project::prefetch;
 use super::project::{facing_sign, hit, placement_frame, splat_color, world_surfel, CULLED};
 use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, TransformGrad, FILTER_INV_VARIANCE};
@@ -207,21 +207,38 @@ fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; 
         }
     }
 
+    // Pixels in order of decreasing last contributor: pixel p joins the walk (its bit in
+    // `open`, per tile row) once k < last(p).
+    let mut order: Vec<u16> = (0..TILE_PIXELS as u16)
+        .filter(|&p| states[p as usize].last > 0)
+        .collect();
+    order.sort_unstable_by_key(|&p| std::cmp::Reverse(states[p as usize].last));
+    let mut joined = 0;
+    let mut open = [0u32; TILE as usize];
     for k in (0..max_last as usize).rev() {
+        while let Some(&p) = order.get(joined) {
+            if states[p as usize].last as usize <= k {
+                break;
+            }
+            open[p as usize / TILE as usize] |= 1 << (p as usize % TILE as usize);
+            joined += 1;
+        }
         if k >= PREFETCH_AHEAD {
             prefetch(&f.prepared.splats, list[k - PREFETCH_AHEAD] as usize);
         }
         let s = &f.prepared.splats[list[k] as usize];
         let (sx0, sy0, sx1, sy1) = clip(s, bounds);
+        let cols = row_bits(x0, sx0, sx1);
         let mut g = [0.0f32; NG];
         for y in sy0..sy1 {
             let v = y as f32 + 0.5;
-            let row = ((y - y0) * TILE) as usize;
-            for x in sx0..sx1 {
-                let p = row + (x - x0) as usize;
-                if k as u32 >= states[p].last {
-                    continue;
-                }
+            let r = (y - y0) as usize;
+            let mut m = open[r] & cols;
+            while m != 0 {
+                let bit = m.trailing_zeros();
+                m &= m - 1;
+                let x = x0 + bit;
+                let p = r * TILE as usize + bit as usize;
                 let u = x as f32 + 0.5;
                 let Some(h) = hit(s, u, v) else {
                     continue;
