@@ -61,7 +61,7 @@ pub(crate) fn backward(f: &Forward, grad: &ImageGrad) -> Gradients {
     // them). Walking the splats in sorted order reads every tile's slice of `slots` forwards;
     // the surfel loop below, in input order, then reads one sum per surfel.
     const SUM_CHUNK: usize = 2048;
-    let mut sums = vec![[0.0f32; NG]; f.prepared.splats.len()];
+    let mut sums = vec![[0.0f32; NG]; f.prepared.order.len()];
     sums.par_chunks_mut(SUM_CHUNK)
         .enumerate()
         .for_each(|(chunk, out)| {
