@@ -8,7 +8,7 @@
 
 use super::forward::{clip, row_bits, tile_pixels, PREFETCH_AHEAD};
 use super::project::prefetch;
-use super::project::{facing_sign, hit, placement_frame, splat_color, world_surfel, CULLED};
+use super::project::{facing_sign, hit, placement_frame, world_surfel, CULLED};
 use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, TransformGrad, FILTER_INV_VARIANCE};
 use super::{TILE, TILE_PIXELS};
 use glam::{Mat3, Vec3};
@@ -342,10 +342,10 @@ fn surfel_grad(
     g_a += dcx * g[G_C] + dcy * g[G_C + 1];
 
     // Colour: SH coefficients, and the view direction's dependence on the centre.
-    let (raw, dir, len) = splat_color(view.o, w.p, sh_coeffs);
+    let (dir, len) = sh::view_dir_f32(view.o.to_array(), w.p.to_array());
     let d_color = [g[G_COLOR], g[G_COLOR + 1], g[G_COLOR + 2]];
     let sh_coeffs = &sh_coeffs[..sh_coeffs.len().min(16)];
-    let g_a_sh = sh::backward_f32(dir, len, sh_coeffs, raw, d_color, d_sh);
+    let (_, g_a_sh) = sh::color_backward_f32(dir, len, sh_coeffs, d_color, d_sh);
     g_a += Vec3::from_array(g_a_sh);
 
     // w_u = t_u / s_u.

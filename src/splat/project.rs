@@ -352,7 +352,7 @@ fn build(view: &View, w: &WorldSurfel, sh_coeffs: &[[f32; 3]], zc: f32, rect: [u
     let wu = tu / su;
     let wv = tv / sv;
     let coeffs = |x: Vec3| [view.d0.dot(x), view.du.dot(x), view.dv.dot(x)];
-    let color = splat_color(view.o, w.p, sh_coeffs).0.map(|x| x.max(0.0));
+    let color = splat_color(view.o, w.p, sh_coeffs).map(|x| x.max(0.0));
     let normal = n * facing_sign(n, a);
     Splat {
         hu: coeffs(wu),
@@ -371,11 +371,11 @@ fn build(view: &View, w: &WorldSurfel, sh_coeffs: &[[f32; 3]], zc: f32, rect: [u
     }
 }
 
-/// Unclamped SH colour, the unit view direction and |μ − o|. Forward and backward call this
-/// same function, so they agree bit for bit on which channels the clamp at 0 cut.
-pub(crate) fn splat_color(o: Vec3, p: Vec3, coeffs: &[[f32; 3]]) -> ([f32; 3], [f32; 3], f32) {
-    let (d, len) = sh::view_dir_f32(o.to_array(), p.to_array());
-    (sh::eval_f32(d, &coeffs[..coeffs.len().min(16)]), d, len)
+/// Unclamped SH colour. The backward recomputes it bit for bit ([`sh::color_backward_f32`]),
+/// so both agree on which channels the clamp at 0 cut.
+fn splat_color(o: Vec3, p: Vec3, coeffs: &[[f32; 3]]) -> [f32; 3] {
+    let (d, _) = sh::view_dir_f32(o.to_array(), p.to_array());
+    sh::eval_f32(d, &coeffs[..coeffs.len().min(16)])
 }
 
 /// The pixels whose centres can see the surfel: the union of the projected support square

@@ -28,7 +28,15 @@ const K3: [f64; 7] = [
 pub const DC_BIAS: f64 = 0.5;
 
 macro_rules! sh_functions {
-    ($t:ty, $basis:ident, $view_dir:ident, $eval:ident, $backward:ident) => {
+    (
+        $t:ty,
+        $basis:ident,
+        $view_dir:ident,
+        $eval:ident,
+        $backward:ident,
+        $color_backward:ident,
+        $backward_basis:ident
+    ) => {
         /// Basis values `Y_k(d)` for the `n ≤ 16` coefficients of a degree, and, if asked for, their
         /// gradients with respect to `d` (as a polynomial in x, y, z; the caller projects out the radial
         /// part).
@@ -153,6 +161,43 @@ macro_rules! sh_functions {
             let mut y = [0.0; 16];
             let mut dy = [[0.0; 3]; 16];
             $basis(d, f.len(), &mut y, Some(&mut dy));
+            $backward_basis(d, len, f, raw, d_color, d_f, &y, &dy)
+        }
+
+        /// [`eval`] and its backward at once (the basis is evaluated once): returns the unclamped
+        /// colour, bit for bit as `eval` computes it, and dL/d(p − o) as the backward does.
+        pub fn $color_backward(
+            d: [$t; 3],
+            len: $t,
+            f: &[[$t; 3]],
+            d_color: [$t; 3],
+            d_f: &mut [[f32; 3]],
+        ) -> ([$t; 3], [$t; 3]) {
+            let mut y = [0.0; 16];
+            let mut dy = [[0.0; 3]; 16];
+            $basis(d, f.len(), &mut y, Some(&mut dy));
+            // The same sum, in the same order, as `eval`.
+            let mut raw = [DC_BIAS as $t; 3];
+            for (fk, yk) in f.iter().zip(&y) {
+                for ch in 0..3 {
+                    raw[ch] += fk[ch] * yk;
+                }
+            }
+            let g_a = $backward_basis(d, len, f, raw, d_color, d_f, &y, &dy);
+            (raw, g_a)
+        }
+
+        #[allow(clippy::too_many_arguments)]
+        fn $backward_basis(
+            d: [$t; 3],
+            len: $t,
+            f: &[[$t; 3]],
+            raw: [$t; 3],
+            d_color: [$t; 3],
+            d_f: &mut [[f32; 3]],
+            y: &[$t; 16],
+            dy: &[[$t; 3]; 16],
+        ) -> [$t; 3] {
             // 3DGS: a clamped channel passes no gradient.
             let g = [0, 1, 2].map(|ch| if raw[ch] < 0.0 { 0.0 } else { d_color[ch] });
             let mut g_dir = [0.0; 3];
@@ -177,8 +222,24 @@ macro_rules! sh_functions {
     };
 }
 
-sh_functions!(f64, basis, view_dir, eval, backward);
-sh_functions!(f32, basis_f32, view_dir_f32, eval_f32, backward_f32);
+sh_functions!(
+    f64,
+    basis,
+    view_dir,
+    eval,
+    backward,
+    color_backward,
+    backward_basis
+);
+sh_functions!(
+    f32,
+    basis_f32,
+    view_dir_f32,
+    eval_f32,
+    backward_f32,
+    color_backward_f32,
+    backward_basis_f32
+);
 
 #[cfg(test)]
 mod tests {
@@ -283,6 +344,11 @@ mod tests {
                 let (mut df32, mut df64) = ([[0.0f32; 3]; 16], [[0.0f32; 3]; 16]);
                 let a32 = backward_f32(d32, l32, &f32s[..n], c32, g.map(|x| x as f32), &mut df32);
                 let a64 = backward(d64, l64, &f64s[..n], c64, g, &mut df64);
+                let mut df_fused = [[0.0f32; 3]; 16];
+                let (raw, a_fused) =
+                    color_backward_f32(d32, l32, &f32s[..n], g.map(|x| x as f32), &mut df_fused);
+                assert_eq!((raw, a_fused), (c32, a32));
+                assert_eq!(df_fused, df32);
                 for j in 0..3 {
                     assert!(
                         (a32[j] as f64 - a64[j]).abs() < 1e-5,
