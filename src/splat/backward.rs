@@ -3,8 +3,9 @@
 //! it), `dL/dα_j = T_j (g·f_j − B_{j+1})` and `B_j = α_j g·f_j + (1 − α_j) B_{j+1}`, where
 //! `f_j` stacks the hit's colour, 1 (opacity), depth and normal and `g` the pixel's upstream
 //! gradient. Each (tile, surfel) pair sums its pixels into one slot of a buffer laid out like
-//! the tile lists; a second parallel pass sums each surfel's slots and carries the result
-//! through the projection to the surfel's parameters and its placement.
+//! the tile lists. A second parallel pass sums each splat's slots, walking the splats in depth
+//! order so that every tile's slots are read forwards; a third, in input order, carries each
+//! sum through the projection to the surfel's parameters and its placement.
 
 use super::forward::{clip, row_bits, tile_pixels, PREFETCH_AHEAD};
 use super::project::prefetch;

@@ -143,8 +143,8 @@ pub(crate) struct Splat {
     pub rect: [u32; 4],
 }
 
-/// Asks for a splat's two cache lines ahead of use. A tile visits its splats in depth order with
-/// irregular gaps in memory, which the hardware prefetcher cannot follow, and the hit loops were
+/// Asks for a splat's two cache lines ahead of use. A tile visits its splats in depth order,
+/// scattered over the input-ordered array, which the hardware prefetcher cannot follow, and the hit loops were
 /// measured to spend a fifth of their time waiting for the first load of each splat.
 #[inline(always)]
 pub(crate) fn prefetch(splats: &[Splat], k: usize) {
