@@ -144,8 +144,8 @@ pub(crate) struct Splat {
 }
 
 /// Asks for a splat's two cache lines ahead of use. A tile visits its splats in depth order,
-/// scattered over the input-ordered array, which the hardware prefetcher cannot follow, and the hit loops were
-/// measured to spend a fifth of their time waiting for the first load of each splat.
+/// scattered over the input-ordered array, which the hardware prefetcher cannot follow; the hit
+/// loops were measured to spend a fifth of their time waiting for the first load of each splat.
 #[inline(always)]
 pub(crate) fn prefetch(splats: &[Splat], k: usize) {
     #[cfg(target_arch = "x86_64")]
