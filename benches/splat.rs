@@ -12,10 +12,17 @@
 //! - `splat_128_100k/forward`: projection, binning, rasterisation.
 //! - `splat_128_100k/forward_backward`: the above plus the backward pass for a random upstream
 //!   gradient on every output map (what one optimisation step costs).
+//! - `splat_128_100k/forward_backward_sh0`: the same scene with degree-0 SH (same geometry), as
+//!   the reconstruction trains it.
 //!
-//! Run: `cargo bench --bench splat`. Numbers are noisy on a shared machine. First measured
-//! (2 cores, load average ~7 from other builds, so well under the machine's full speed):
-//! forward ≈ 60–80 ms, forward + backward ≈ 170–180 ms.
+//! Run: `cargo bench --bench splat`. Numbers are noisy on a shared machine: compare builds by
+//! alternating them under the same load. First measured (2 cores, load average ~7 from other
+//! builds, so well under the machine's full speed): forward ≈ 60–80 ms, forward + backward ≈
+//! 170–180 ms. After the slot reduction in depth order, f32 SH, per-row pixel masks and
+//! unsorted splat storage, alternating with that first version at load average 3.2–4.2
+//! (same binary otherwise): forward 38–42 ms (was 48–52), forward + backward 78–91 ms (was
+//! 127–143), degree-0 forward + backward 73–79 ms (was 139–141). Still about 2.5× the issue's
+//! 30 ms aim for forward + backward; at load ~2.7 the same pair measured 47–51 ms against 69–73.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{Mat3, Quat, Vec3};
@@ -141,7 +148,7 @@ fn in_view(cam: &Camera, p: Vec3) -> bool {
 }
 
 /// Rejection-samples `SURFELS` surfels in view, uniformly by area over room and box.
-fn scene(cam: &Camera) -> (Surfels, Surfels, Rigid) {
+fn scene(cam: &Camera, degree: u8) -> (Surfels, Surfels, Rigid) {
     let (room, cube) = surfaces();
     let place = Rigid {
         rotation: Quat::from_rotation_y(0.5).to_array(),
@@ -179,8 +186,9 @@ fn scene(cam: &Camera) -> (Surfels, Surfels, Rigid) {
     }
     let visible_area = total * SURFELS as f32 / tries as f32;
     let sigma = (visible_area / SURFELS as f32).sqrt();
-    let mut bg = Surfels::with_sh_degree(3);
-    let mut obj = Surfels::with_sh_degree(3);
+    let mut bg = Surfels::with_sh_degree(degree);
+    let mut obj = Surfels::with_sh_degree(degree);
+    // Drawn at degree 3 whatever the degree, so every degree gets the same geometry.
     let mut sh = vec![[0.0f32; 3]; sh_coeffs(3)];
     for (is_obj, p, frame) in candidates {
         for (k, c) in sh.iter_mut().enumerate() {
@@ -197,7 +205,7 @@ fn scene(cam: &Camera) -> (Surfels, Surfels, Rigid) {
             q.to_array(),
             [sigma * rng.range(0.8, 1.25), sigma * rng.range(0.8, 1.25)],
             rng.range(0.9, 1.0),
-            &sh,
+            &sh[..sh_coeffs(degree)],
             [0.5; 3],
             0.0,
             0.5,
@@ -208,7 +216,7 @@ fn scene(cam: &Camera) -> (Surfels, Surfels, Rigid) {
 
 fn bench(c: &mut Criterion) {
     let cam = camera();
-    let (bg, obj, place) = scene(&cam);
+    let (bg, obj, place) = scene(&cam, 3);
     let comps = [
         Placement::world(&bg),
         Placement {
@@ -245,6 +253,21 @@ fn bench(c: &mut Criterion) {
     g.bench_function("forward_backward", |b| {
         b.iter(|| {
             let f = splat::forward(&comps, &cam);
+            black_box(f.backward(&grad).transforms[1])
+        })
+    });
+    // The same scene with degree-0 SH, as the reconstruction trains it.
+    let (bg0, obj0, _) = scene(&cam, 0);
+    let comps0 = [
+        Placement::world(&bg0),
+        Placement {
+            surfels: &obj0,
+            transform: place,
+        },
+    ];
+    g.bench_function("forward_backward_sh0", |b| {
+        b.iter(|| {
+            let f = splat::forward(&comps0, &cam);
             black_box(f.backward(&grad).transforms[1])
         })
     });

@@ -3,12 +3,13 @@
 //! it), `dL/dα_j = T_j (g·f_j − B_{j+1})` and `B_j = α_j g·f_j + (1 − α_j) B_{j+1}`, where
 //! `f_j` stacks the hit's colour, 1 (opacity), depth and normal and `g` the pixel's upstream
 //! gradient. Each (tile, surfel) pair sums its pixels into one slot of a buffer laid out like
-//! the tile lists; a second parallel pass sums each surfel's slots and carries the result
-//! through the projection to the surfel's parameters and its placement.
+//! the tile lists. A second parallel pass sums each splat's slots, walking the splats in depth
+//! order so that every tile's slots are read forwards; a third, in input order, carries each
+//! sum through the projection to the surfel's parameters and its placement.
 
-use super::forward::{clip, tile_pixels, PREFETCH_AHEAD};
+use super::forward::{clip, row_bits, tile_pixels, PREFETCH_AHEAD};
 use super::project::prefetch;
-use super::project::{facing_sign, hit, placement_frame, splat_color, world_surfel, CULLED};
+use super::project::{facing_sign, hit, placement_frame, world_surfel, CULLED};
 use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, TransformGrad, FILTER_INV_VARIANCE};
 use super::{TILE, TILE_PIXELS};
 use glam::{Mat3, Vec3};
@@ -57,16 +58,25 @@ pub(crate) fn backward(f: &Forward, grad: &ImageGrad) -> Gradients {
         .for_each(|(tile, out)| backward_tile(f, grad, tile, out));
 
     let bins = &f.bins;
-    // Sums splat k's slots, in a fixed order.
-    let sum_slots = |k: usize| {
-        let mut g = [0.0f32; NG];
-        for &e in &bins.entry_of[bins.splat_start[k] as usize..bins.splat_start[k + 1] as usize] {
-            for (a, b) in g.iter_mut().zip(&slots[e as usize]) {
-                *a += b;
+    // Each drawn splat's slots summed in a fixed order (its tiles row-major, as `bin` lists
+    // them). Walking the splats in sorted order reads every tile's slice of `slots` forwards;
+    // the surfel loop below, in input order, then reads one sum per surfel.
+    const SUM_CHUNK: usize = 2048;
+    let mut sums = vec![[0.0f32; NG]; f.prepared.order.len()];
+    sums.par_chunks_mut(SUM_CHUNK)
+        .enumerate()
+        .for_each(|(chunk, out)| {
+            for (j, g) in out.iter_mut().enumerate() {
+                let k = chunk * SUM_CHUNK + j;
+                let entries = bins.splat_start[k] as usize..bins.splat_start[k + 1] as usize;
+                for &e in &bins.entry_of[entries] {
+                    for (a, b) in g.iter_mut().zip(&slots[e as usize]) {
+                        *a += b;
+                    }
+                }
             }
-        }
-        g
-    };
+        });
+    drop(slots);
 
     let mut out = Gradients::default();
     for (c, pl) in f.components.iter().enumerate() {
@@ -89,13 +99,20 @@ pub(crate) fn backward(f: &Forward, grad: &ImageGrad) -> Gradients {
             .enumerate()
             .map(|(chunk, ((((gp, gq), gs), go), gsh))| {
                 let mut acc = [0.0f32; 6];
+                let sorted_of = &f.prepared.sorted_of[base + chunk * CHUNK..][..gp.len()];
                 for j in 0..gp.len() {
                     let i = chunk * CHUNK + j;
-                    let k = f.prepared.sorted_of[base + i];
+                    // The sums are read in a random order: ask for them ahead.
+                    if let Some(&ahead) = sorted_of.get(j + SUM_AHEAD) {
+                        if ahead != CULLED {
+                            prefetch_sum(&sums, ahead as usize);
+                        }
+                    }
+                    let k = sorted_of[j];
                     if k == CULLED {
                         continue;
                     }
-                    let sg = &sum_slots(k as usize);
+                    let sg = &sums[k as usize];
                     if sg.iter().all(|x| *x == 0.0) {
                         continue;
                     }
@@ -136,6 +153,26 @@ pub(crate) fn backward(f: &Forward, grad: &ImageGrad) -> Gradients {
     out
 }
 
+/// How many surfels ahead the surfel loop prefetches its gradient sums.
+const SUM_AHEAD: usize = 8;
+
+/// Asks for the (up to two) cache lines of `sums[k]`.
+#[inline(always)]
+fn prefetch_sum(sums: &[[f32; NG]], k: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(s) = sums.get(k) {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let p = s.as_ptr() as *const i8;
+        // SAFETY: prefetching is a hint that never faults, and `p` points into a live slice.
+        unsafe {
+            _mm_prefetch(p, _MM_HINT_T0);
+            _mm_prefetch(p.add(NG * 4 - 1), _MM_HINT_T0);
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (sums, k);
+}
+
 fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; NG]]) {
     let view = &f.view;
     let list = f.bins.tile_list(tile);
@@ -171,21 +208,38 @@ fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; 
         }
     }
 
+    // Pixels in order of decreasing last contributor: pixel p joins the walk (its bit in
+    // `open`, per tile row) once k < last(p).
+    let mut order: Vec<u16> = (0..TILE_PIXELS as u16)
+        .filter(|&p| states[p as usize].last > 0)
+        .collect();
+    order.sort_unstable_by_key(|&p| std::cmp::Reverse(states[p as usize].last));
+    let mut joined = 0;
+    let mut open = [0u32; TILE as usize];
     for k in (0..max_last as usize).rev() {
+        while let Some(&p) = order.get(joined) {
+            if states[p as usize].last as usize <= k {
+                break;
+            }
+            open[p as usize / TILE as usize] |= 1 << (p as usize % TILE as usize);
+            joined += 1;
+        }
         if k >= PREFETCH_AHEAD {
             prefetch(&f.prepared.splats, list[k - PREFETCH_AHEAD] as usize);
         }
         let s = &f.prepared.splats[list[k] as usize];
         let (sx0, sy0, sx1, sy1) = clip(s, bounds);
+        let cols = row_bits(x0, sx0, sx1);
         let mut g = [0.0f32; NG];
         for y in sy0..sy1 {
             let v = y as f32 + 0.5;
-            let row = ((y - y0) * TILE) as usize;
-            for x in sx0..sx1 {
-                let p = row + (x - x0) as usize;
-                if k as u32 >= states[p].last {
-                    continue;
-                }
+            let r = (y - y0) as usize;
+            let mut m = open[r] & cols;
+            while m != 0 {
+                let bit = m.trailing_zeros();
+                m &= m - 1;
+                let x = x0 + bit;
+                let p = r * TILE as usize + bit as usize;
                 let u = x as f32 + 0.5;
                 let Some(h) = hit(s, u, v) else {
                     continue;
@@ -289,21 +343,11 @@ fn surfel_grad(
     g_a += dcx * g[G_C] + dcy * g[G_C + 1];
 
     // Colour: SH coefficients, and the view direction's dependence on the centre.
-    let (raw, dir, len) = splat_color(view.o, w.p, sh_coeffs);
-    let mut f64_coeffs = [[0.0f64; 3]; 16];
-    for (dst, src) in f64_coeffs.iter_mut().zip(sh_coeffs) {
-        *dst = src.map(f64::from);
-    }
-    let d_color = [g[G_COLOR], g[G_COLOR + 1], g[G_COLOR + 2]].map(f64::from);
-    let g_a_sh = sh::backward(
-        dir,
-        len,
-        &f64_coeffs[..sh_coeffs.len().min(16)],
-        raw,
-        d_color,
-        d_sh,
-    );
-    g_a += Vec3::from_array(g_a_sh.map(|x| x as f32));
+    let (dir, len) = sh::view_dir_f32(view.o.to_array(), w.p.to_array());
+    let d_color = [g[G_COLOR], g[G_COLOR + 1], g[G_COLOR + 2]];
+    let sh_coeffs = &sh_coeffs[..sh_coeffs.len().min(16)];
+    let (_, g_a_sh) = sh::color_backward_f32(dir, len, sh_coeffs, d_color, d_sh);
+    g_a += Vec3::from_array(g_a_sh);
 
     // w_u = t_u / s_u.
     let g_tu = g_wu / su;

@@ -95,6 +95,17 @@ pub(crate) fn rasterize(
     (image, states)
 }
 
+/// Bit `x − x0` of row `y − y0` for the pixels of a tile row in `[sx0, sx1)` (within the tile).
+#[inline]
+pub(crate) fn row_bits(x0: u32, sx0: u32, sx1: u32) -> u32 {
+    if sx1 <= sx0 {
+        return 0;
+    }
+    let (a, b) = (sx0 - x0, sx1 - x0);
+    // b ≤ TILE = 16, so the shifts cannot overflow a u32.
+    ((1u32 << b) - 1) & !((1u32 << a) - 1)
+}
+
 fn forward_tile(
     view: &View,
     splats: &[Splat],
@@ -105,9 +116,14 @@ fn forward_tile(
 ) {
     let bounds = tile_pixels(view, tile);
     let (x0, y0, x1, y1) = bounds;
-    let mut done = [false; TILE_PIXELS];
     for s in st.iter_mut() {
         s.t = 1.0;
+    }
+    // Per tile row, the pixels still compositing (bit x − x0): a pixel leaves once its
+    // transmittance falls below T_MIN, and the loops visit only the bits that remain.
+    let mut open = [0u32; TILE as usize];
+    for row in open.iter_mut().take((y1 - y0) as usize) {
+        *row = row_bits(x0, x0, x1);
     }
     let mut live = (x1 - x0) * (y1 - y0);
     for (k, &i) in list.iter().enumerate() {
@@ -119,14 +135,16 @@ fn forward_tile(
         }
         let s = &splats[i as usize];
         let (sx0, sy0, sx1, sy1) = clip(s, bounds);
+        let cols = row_bits(x0, sx0, sx1);
         for y in sy0..sy1 {
             let v = y as f32 + 0.5;
-            let row = ((y - y0) * TILE) as usize;
-            for x in sx0..sx1 {
-                let p = row + (x - x0) as usize;
-                if done[p] {
-                    continue;
-                }
+            let r = (y - y0) as usize;
+            let mut m = open[r] & cols;
+            while m != 0 {
+                let bit = m.trailing_zeros();
+                m &= m - 1;
+                let x = x0 + bit;
+                let p = r * TILE as usize + bit as usize;
                 let Some(h) = hit(s, x as f32 + 0.5, v) else {
                     continue;
                 };
@@ -147,7 +165,7 @@ fn forward_tile(
                 ps.t *= 1.0 - h.alpha;
                 ps.last = k as u32 + 1;
                 if ps.t < T_MIN {
-                    done[p] = true;
+                    open[r] &= !(1 << bit);
                     live -= 1;
                 }
             }

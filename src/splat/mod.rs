@@ -214,7 +214,7 @@ pub fn forward<'a>(components: &[Placement<'a>], camera: &Camera) -> Forward<'a>
     }
     offsets.push(total);
     let prepared = project::prepare(&view, components, &offsets);
-    let bins = project::bin(&view, &prepared.splats);
+    let bins = project::bin(&view, &prepared.splats, &prepared.order);
     let (image, pixels) = forward::rasterize(&view, &prepared.splats, &bins);
     Forward {
         image,

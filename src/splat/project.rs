@@ -143,9 +143,9 @@ pub(crate) struct Splat {
     pub rect: [u32; 4],
 }
 
-/// Asks for a splat's two cache lines ahead of use. A tile visits its splats in depth order with
-/// irregular gaps in memory, which the hardware prefetcher cannot follow, and the hit loops were
-/// measured to spend a fifth of their time waiting for the first load of each splat.
+/// Asks for a splat's two cache lines ahead of use. A tile visits its splats in depth order,
+/// scattered over the input-ordered array, which the hardware prefetcher cannot follow; the hit
+/// loops were measured to spend a fifth of their time waiting for the first load of each splat.
 #[inline(always)]
 pub(crate) fn prefetch(splats: &[Splat], k: usize) {
     #[cfg(target_arch = "x86_64")]
@@ -236,12 +236,15 @@ const RHO_SLACK: f32 = 1e-3;
 /// Margin of a pixel rectangle, pixels: the rectangle is computed in f32 too.
 const RECT_MARGIN: f32 = 0.01;
 
-/// The visible surfels, sorted front to back by centre depth (ties by global index), as 2DGS
-/// sorts each tile; the tile lists then point into this array in increasing order, so the tile
-/// loops walk memory forwards instead of jumping around a global array.
+/// Every surfel as a splat, by global index (a culled one has a NaN `zc` and is in no list),
+/// and the visible ones' order front to back by centre depth (ties by global index), as 2DGS
+/// sorts each tile. The splats are not moved into that order: the tile loops prefetch them
+/// ahead of use, and moving 128-byte records costs more than it saves.
 pub(crate) struct Prepared {
     pub splats: Vec<Splat>,
-    /// Sorted index of each global surfel, `CULLED` if it is not drawn.
+    /// Global index of the k-th visible splat, front to back.
+    pub order: Vec<u32>,
+    /// Sorted index k of each global surfel, `CULLED` if it is not drawn.
     pub sorted_of: Vec<u32>,
 }
 
@@ -253,13 +256,14 @@ pub(crate) fn prepare(view: &View, components: &[Placement], offsets: &[usize]) 
     if view.width == 0 || view.height == 0 {
         return Prepared {
             splats: Vec::new(),
+            order: Vec::new(),
             sorted_of: vec![CULLED; total],
         };
     }
-    // Pass 1, in input order (the inputs are read sequentially): cull, and build what survives
+    // In input order (the inputs are read sequentially): cull, and build what survives
     // (a culled surfel is marked by a NaN depth).
     let frames: Vec<_> = components.iter().map(placement_frame).collect();
-    let global: Vec<Splat> = (0..total)
+    let splats: Vec<Splat> = (0..total)
         .into_par_iter()
         .with_min_len(512)
         .map(|g| {
@@ -281,7 +285,7 @@ pub(crate) fn prepare(view: &View, components: &[Placement], offsets: &[usize]) 
         })
         .collect();
     // Centre depths are ≥ NEAR > 0, so their bit patterns sort like the numbers.
-    let mut keys: Vec<u64> = global
+    let mut keys: Vec<u64> = splats
         .par_iter()
         .enumerate()
         .with_min_len(4096)
@@ -289,17 +293,16 @@ pub(crate) fn prepare(view: &View, components: &[Placement], offsets: &[usize]) 
         .map(|(g, s)| ((s.zc.to_bits() as u64) << 32) | g as u64)
         .collect();
     keys.par_sort_unstable();
-    // Pass 2: gather in depth order.
-    let splats: Vec<Splat> = keys
-        .par_iter()
-        .with_min_len(4096)
-        .map(|&key| global[key as u32 as usize])
-        .collect();
+    let order: Vec<u32> = keys.iter().map(|&key| key as u32).collect();
     let mut sorted_of = vec![CULLED; total];
-    for (k, key) in keys.iter().enumerate() {
-        sorted_of[*key as u32 as usize] = k as u32;
+    for (k, &g) in order.iter().enumerate() {
+        sorted_of[g as usize] = k as u32;
     }
-    Prepared { splats, sorted_of }
+    Prepared {
+        splats,
+        order,
+        sorted_of,
+    }
 }
 
 fn finite3(v: Vec3) -> bool {
@@ -349,9 +352,7 @@ fn build(view: &View, w: &WorldSurfel, sh_coeffs: &[[f32; 3]], zc: f32, rect: [u
     let wu = tu / su;
     let wv = tv / sv;
     let coeffs = |x: Vec3| [view.d0.dot(x), view.du.dot(x), view.dv.dot(x)];
-    let color = splat_color(view.o, w.p, sh_coeffs)
-        .0
-        .map(|x| x.max(0.0) as f32);
+    let color = splat_color(view.o, w.p, sh_coeffs).map(|x| x.max(0.0));
     let normal = n * facing_sign(n, a);
     Splat {
         hu: coeffs(wu),
@@ -370,14 +371,11 @@ fn build(view: &View, w: &WorldSurfel, sh_coeffs: &[[f32; 3]], zc: f32, rect: [u
     }
 }
 
-/// Unclamped SH colour (f64), the unit view direction and |μ − o|.
-pub(crate) fn splat_color(o: Vec3, p: Vec3, coeffs: &[[f32; 3]]) -> ([f64; 3], [f64; 3], f64) {
-    let mut f = [[0.0f64; 3]; 16];
-    for (dst, src) in f.iter_mut().zip(coeffs) {
-        *dst = src.map(f64::from);
-    }
-    let (d, len) = sh::view_dir(o.to_array().map(f64::from), p.to_array().map(f64::from));
-    (sh::eval(d, &f[..coeffs.len().min(16)]), d, len)
+/// Unclamped SH colour. The backward recomputes it bit for bit ([`sh::color_backward_f32`]),
+/// so both agree on which channels the clamp at 0 cut.
+fn splat_color(o: Vec3, p: Vec3, coeffs: &[[f32; 3]]) -> [f32; 3] {
+    let (d, _) = sh::view_dir_f32(o.to_array(), p.to_array());
+    sh::eval_f32(d, &coeffs[..coeffs.len().min(16)])
 }
 
 /// The pixels whose centres can see the surfel: the union of the projected support square
@@ -438,9 +436,9 @@ fn pixel_rect(
 pub(crate) struct Bins {
     /// Tile `t`'s list is `list[tile_start[t]..tile_start[t + 1]]`.
     pub tile_start: Vec<u32>,
-    /// Sorted splat indices, each tile's front to back (increasing).
+    /// Global splat indices, each tile's front to back.
     pub list: Vec<u32>,
-    /// Splat `k`'s entries are `entry_of[splat_start[k]..splat_start[k + 1]]`.
+    /// Sorted splat `k`'s entries are `entry_of[splat_start[k]..splat_start[k + 1]]`.
     pub splat_start: Vec<u32>,
     /// Positions in `list`.
     pub entry_of: Vec<u32>,
@@ -462,13 +460,17 @@ fn tile_rect(s: &Splat) -> [u32; 4] {
     ]
 }
 
-/// Buckets the sorted splats into tiles; walking them in order keeps every list sorted.
-pub(crate) fn bin(view: &View, splats: &[Splat]) -> Bins {
+/// Buckets the splats into tiles in depth order, which keeps every list sorted.
+pub(crate) fn bin(view: &View, splats: &[Splat], order: &[u32]) -> Bins {
     let tiles = view.tiles();
+    let rects: Vec<[u32; 4]> = order
+        .par_iter()
+        .with_min_len(4096)
+        .map(|&g| tile_rect(&splats[g as usize]))
+        .collect();
     let mut tile_count = vec![0u32; tiles];
-    let mut splat_start = vec![0u32; splats.len() + 1];
-    for (k, s) in splats.iter().enumerate() {
-        let [tx0, ty0, tx1, ty1] = tile_rect(s);
+    let mut splat_start = vec![0u32; rects.len() + 1];
+    for (k, &[tx0, ty0, tx1, ty1]) in rects.iter().enumerate() {
         for ty in ty0..ty1 {
             for tx in tx0..tx1 {
                 tile_count[(ty * view.tiles_x + tx) as usize] += 1;
@@ -485,14 +487,13 @@ pub(crate) fn bin(view: &View, splats: &[Splat]) -> Bins {
     let mut entry_of = vec![0u32; entries];
     let mut cursor = tile_start.clone();
     let mut j = 0;
-    for (k, s) in splats.iter().enumerate() {
-        let [tx0, ty0, tx1, ty1] = tile_rect(s);
+    for (&[tx0, ty0, tx1, ty1], &g) in rects.iter().zip(order) {
         for ty in ty0..ty1 {
             for tx in tx0..tx1 {
                 let t = (ty * view.tiles_x + tx) as usize;
                 let pos = cursor[t];
                 cursor[t] += 1;
-                list[pos as usize] = k as u32;
+                list[pos as usize] = g;
                 entry_of[j] = pos;
                 j += 1;
             }
