@@ -316,6 +316,67 @@ fn rgb_loss_gradient_matches_finite_differences() {
     assert_grad("L_RGB", &flat3(&loss.grad), &fd, 1e-4);
 }
 
+/// The display-space L_RGB against an f64 reference of the same composition, values from dark
+/// (below the sRGB knee) to far above 1, and its gradient against central differences.
+#[test]
+fn display_rgb_loss_gradient_matches_finite_differences() {
+    fn encode(x: f64) -> f64 {
+        if x <= 0.003_130_8 {
+            12.92 * x
+        } else if x <= 1.0 {
+            1.055 * x.powf(1.0 / 2.4) - 0.055
+        } else {
+            1.0 + 1.055 / 2.4 * (x - 1.0)
+        }
+    }
+    let mut rng = SplitMix(14);
+    let (w, h) = (16, 12);
+    // Linear captures from 0 to 3 (sunlit patches), squared so dark values are common.
+    let target: Vec<[f32; 3]> = (0..w * h)
+        .map(|_| [0, 1, 2].map(|_| 3.0 * rng.f32() * rng.f32()))
+        .collect();
+    // Renders near the captures; kept off the knee and off 1, where the slope has a corner.
+    let rendered: Vec<[f32; 3]> = perturbed(&mut rng, &target)
+        .into_iter()
+        .map(|c| {
+            c.map(|v| {
+                if (v - 1.0).abs() < 1e-3 || (v - 0.003).abs() < 5e-4 {
+                    v + 0.01
+                } else {
+                    v
+                }
+            })
+        })
+        .collect();
+    let t64: Vec<[f64; 3]> = target
+        .iter()
+        .map(|c| c.map(|v| encode((v as f64).clamp(0.0, 1.0))))
+        .collect();
+    let lambda = optim::LAMBDA_DSSIM as f64;
+    let f = |x: &[f64]| {
+        let x3: Vec<[f64; 3]> = to3(x).iter().map(|c| c.map(encode)).collect();
+        (1.0 - lambda) * ref_l1(&x3, &t64) + lambda * (1.0 - ref_ssim(&x3, &t64, w, h)) / 2.0
+    };
+    let loss = optim::rgb_loss_display(&rendered, &target, w, h, optim::LAMBDA_DSSIM);
+    assert_value("L_RGB display", loss.value, f(&flat3(&rendered)), 1e-5);
+    let fd = finite_differences(&flat3(&rendered), 1e-5, f);
+    assert_grad("L_RGB display", &flat3(&loss.grad), &fd, 1e-3);
+    // The transfer function is continuous at the knee and at 1, and at 1 so is its slope.
+    let (below, above) = (
+        optim::display_encode(0.003_130_7),
+        optim::display_encode(0.003_130_9),
+    );
+    assert!((below.0 - above.0).abs() < 1e-5);
+    let (a, b) = (
+        optim::display_encode(1.0 - 1e-6),
+        optim::display_encode(1.0 + 1e-6),
+    );
+    assert!(
+        (a.0 - b.0).abs() < 1e-5 && (a.1 - b.1).abs() < 1e-4,
+        "{a:?} {b:?}"
+    );
+}
+
 // ---------- per-pixel losses ----------
 
 #[test]

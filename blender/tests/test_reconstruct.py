@@ -7,6 +7,7 @@ import json
 import os
 import shutil
 import subprocess
+from pathlib import Path
 
 from bltest import REPO
 
@@ -31,6 +32,18 @@ def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):
     assert report["heldout_views"] >= 1
     names = [o["name"] for o in tiny_dataset["json"]["objects"]]
     assert sorted(p["object"] for p in report["pose_errors"] if p["state"] == "state1") == sorted(names)
+    # The generator records each object's frame and symmetries, so a turn of the vase about its
+    # own axis is not counted as an error: the symmetry-aware angle never exceeds the plain one.
+    objs = tiny_dataset["json"]["objects"]
+    assert all("reference_pose" in o for o in objs)
+    assert [o["symmetries"] for o in objs if o["name"] == "vase"] == [[{"axis": [0, 1, 0], "order": 0}]]
+    for p in report["pose_errors"]:
+        assert p["rotation_deg"] <= p["rotation_deg_ignoring_symmetry"] + 1e-6
+    # A comparison image per held-out and per training view.
+    assert len(report["heldout"]) == report["heldout_views"]
+    for v in report["heldout"]:
+        assert (work / v["image"]).is_file()
+    assert len(os.listdir(work / "train")) > 0 and report["train_psnr_srgb"] > 0
     info = json.loads(ok("info", "--json", work / "scene.glb"))
     assert [c["name"] for c in info["components"]] == ["background", *names]
     assert [s["name"] for s in info["states"]] == ["state0", "state1"]
@@ -58,6 +71,13 @@ def test_reconstruct_bad_input_is_a_clear_error(tiny_dataset, tmp_path):
     p = run("reconstruct", bad, "-o", tmp_path / "w")
     assert p.returncode == 2, p.stderr
     assert "missing.png" in p.stderr and "Traceback" not in p.stderr and "panicked" not in p.stderr
+
+    d = json.loads((Path(tiny_dataset["path"]) / "dataset.json").read_text())
+    d["objects"][0]["symmetries"] = [{"axis": [0, 0, 0], "order": 2}]
+    (bad / "dataset.json").write_text(json.dumps(d))
+    p = run("reconstruct", bad, "-o", tmp_path / "w")
+    assert p.returncode == 2, p.stderr
+    assert "objects[0].symmetries[0]" in p.stderr and "panicked" not in p.stderr
 
     d["states"][0]["frames"][1]["fl_x"] = "wide"
     (bad / "dataset.json").write_text(json.dumps(d))

@@ -512,10 +512,24 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
             report.heldout_median_depth_error_m,
             100.0 * report.heldout_median_depth_error_rel
         );
+        eprintln!(
+            "  training views: {:.2} dB (sRGB, covered pixels)",
+            report.train_psnr_srgb
+        );
+        for v in &report.heldout {
+            eprintln!(
+                "  held-out {} view {}: {:.2} dB, median depth error {:.3} m ({})",
+                v.state, v.view, v.psnr_srgb, v.median_depth_error_m, v.image
+            );
+        }
         for p in &report.pose_errors {
             eprintln!(
-                "  pose {} {}: {:.2} deg, {:.2} cm",
-                p.state, p.object, p.rotation_deg, p.translation_cm
+                "  pose {} {}: {:.2} deg ({:.1} deg ignoring its symmetries), {:.2} cm at its origin",
+                p.state,
+                p.object,
+                p.rotation_deg,
+                p.rotation_deg_ignoring_symmetry,
+                p.translation_cm
             );
         }
         for (name, share) in &report.label_share {

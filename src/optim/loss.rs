@@ -73,6 +73,59 @@ pub fn rgb_loss(
     }
 }
 
+/// The sRGB transfer function continued beyond [0, 1] so that it keeps a gradient: linear with
+/// slope 12.92 below the knee (negative values included), the sRGB curve up to 1, and the
+/// tangent at 1 above (slope 1.055 / 2.4). Returns the value and its derivative.
+pub fn display_encode(x: f32) -> (f32, f32) {
+    const KNEE: f32 = 0.003_130_8;
+    const SLOPE_AT_1: f32 = 1.055 / 2.4;
+    if x <= KNEE {
+        (12.92 * x, 12.92)
+    } else if x <= 1.0 {
+        let p = x.powf(1.0 / 2.4);
+        (1.055 * p - 0.055, 1.055 / 2.4 * p / x)
+    } else {
+        (1.0 + SLOPE_AT_1 * (x - 1.0), SLOPE_AT_1)
+    }
+}
+
+/// L_RGB on display-encoded colours: the rendered colour through [`display_encode`], the capture
+/// clamped to [0, 1] and sRGB-encoded, as the PSNR the reconstruction is judged by (and as an
+/// 8-bit photograph would be). A sunlit patch far above 1 in the linear capture then asks the
+/// render for display white rather than for its full radiance, and dark regions weigh as much
+/// as an eye sees them. Gradient w.r.t. the linear `rendered`.
+pub fn rgb_loss_display(
+    rendered: &[[f32; 3]],
+    target: &[[f32; 3]],
+    width: usize,
+    height: usize,
+    lambda: f32,
+) -> Loss<Vec<[f32; 3]>> {
+    check_len("target", target.len(), rendered.len());
+    let (enc, slope): (Vec<[f32; 3]>, Vec<[f32; 3]>) = rendered
+        .par_iter()
+        .map(|c| {
+            let e = c.map(display_encode);
+            (e.map(|v| v.0), e.map(|v| v.1))
+        })
+        .unzip();
+    let t: Vec<[f32; 3]> = target
+        .par_iter()
+        .map(|c| c.map(|v| display_encode(v.clamp(0.0, 1.0)).0))
+        .collect();
+    let loss = rgb_loss(&enc, &t, width, height, lambda);
+    let grad = loss
+        .grad
+        .par_iter()
+        .zip(&slope)
+        .map(|(g, s)| std::array::from_fn(|c| g[c] * s[c]))
+        .collect();
+    Loss {
+        value: loss.value,
+        grad,
+    }
+}
+
 /// L_α = ‖Â − 1‖₁ / HW (eq. alpha-coverage), gradient w.r.t. the accumulated opacity Â.
 pub fn alpha_coverage(alpha: &[f32]) -> Loss<Vec<f32>> {
     let count = alpha.len().max(1) as f64;

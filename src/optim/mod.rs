@@ -17,7 +17,8 @@ pub mod ssim;
 pub use adam::{Adam, Group, Schedule};
 pub use geometry::{depth_normal_loss, depth_normals, DepthNormalLoss};
 pub use loss::{
-    alpha_coverage, depth_l1, env_tv, l1, normal_loss, rgb_loss, scale_regularization, LAMBDA_DSSIM,
+    alpha_coverage, depth_l1, display_encode, env_tv, l1, normal_loss, rgb_loss, rgb_loss_display,
+    scale_regularization, LAMBDA_DSSIM,
 };
 pub use ssim::{d_ssim, ssim};
 

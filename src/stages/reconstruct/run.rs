@@ -40,13 +40,28 @@ pub struct Options {
     pub tau_d: f32,
 }
 
+/// An estimated object pose against the ground truth ([`crate::eval::pose`]).
 #[derive(Clone, Debug, Serialize)]
 pub struct PoseError {
     pub state: String,
     pub object: String,
-    pub rotation_deg: f32,
-    pub translation_cm: f32,
-    pub fitness: Option<f32>,
+    /// Least rotation error over the object's declared symmetries, degrees.
+    pub rotation_deg: f64,
+    /// The plain rotation angle of T⁻¹T̂, degrees (differs for symmetric objects).
+    pub rotation_deg_ignoring_symmetry: f64,
+    /// At the object's origin (`reference_pose`; its surfels' centroid when the dataset has none).
+    pub translation_cm: f64,
+}
+
+/// One held-out view's figures.
+#[derive(Clone, Debug, Serialize)]
+pub struct HeldOutView {
+    pub state: String,
+    pub view: usize,
+    pub psnr_srgb: f64,
+    pub median_depth_error_m: f64,
+    /// Capture | render | 4 × |difference|, sRGB, covered pixels only.
+    pub image: String,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -58,6 +73,9 @@ pub struct Report {
     /// Held-out views: PSNR in sRGB over the pixels the capture saw a surface in.
     pub heldout_psnr_srgb: f64,
     pub heldout_views: usize,
+    pub heldout: Vec<HeldOutView>,
+    /// The same over the training views (how well the captures are fitted).
+    pub train_psnr_srgb: f64,
     /// Median |D̂ − D*| over held-out pixels with reference depth, metres, and as a share of
     /// the scene's extent (diagonal of the training points' bounds).
     pub heldout_median_depth_error_m: f64,
@@ -91,13 +109,9 @@ fn say(quiet: bool, s: &str) {
     }
 }
 
-fn rotation_angle_deg(a: &Rigid, b: &Rigid) -> f32 {
-    let q = a.quat().normalize().inverse() * b.quat().normalize();
-    2.0 * q.w.abs().min(1.0).acos().to_degrees()
-}
-
-/// Splits held-out from training observations per training state.
-fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Observation>>) {
+/// Splits the observations of each training state into (training, held-out): views with index
+/// ≡ 0 (mod [`HOLDOUT`]) are held out.
+pub fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Observation>>) {
     let mut train = Vec::new();
     let mut held = Vec::new();
     for state in obs {
@@ -228,7 +242,12 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                 )
             })?;
             t.adam.validate(&path)?;
-            if t.model.poses.len() != train.len() || t.model.components.len() != objects.len() + 1 {
+            let states = train.len();
+            if t.model.poses.len() != states
+                || t.model.colour.len() != states
+                || t.model.components.len() != objects.len() + 1
+                || t.model.components.iter().any(|c| c.sh.len() != states + 1)
+            {
                 return Err(Error::invalid(
                     &path,
                     "model",
@@ -246,16 +265,8 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         } else {
             // Initialisation (item 2): every training view back-projected.
             let bopts = init::BackprojectOptions::default();
-            let clouds: Vec<init::PointCloud> = train
-                .iter()
-                .map(|views| {
-                    let mut c = init::PointCloud::default();
-                    for o in views {
-                        c.extend(&init::backproject(o, &bopts));
-                    }
-                    c
-                })
-                .collect();
+            let clouds: Vec<init::PointCloud> =
+                train.iter().map(|v| init::state_cloud(v, &bopts)).collect();
             // Poses (item 4).
             let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
             let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
@@ -327,13 +338,13 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
             "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
             all.len(), moved, seg.energy_before, seg.energy_after),
             );
-            let model = Model {
-                components: components
+            let model = Model::new(
+                components
                     .iter()
                     .map(|c| RawComponent::from_component(c, poses.len()))
                     .collect(),
                 poses,
-            };
+            );
             Trainer::new(opts.settings.clone(), model)
         };
 
@@ -470,6 +481,45 @@ fn srgb(x: f32) -> f64 {
     }
 }
 
+/// Writes capture | render | 4 × |difference| side by side, sRGB, over the pixels where the
+/// capture saw a surface (black elsewhere).
+fn save_comparison(color: &[[f32; 3]], o: &Observation, path: &Path) -> Result<()> {
+    let (w, h) = (o.camera.w, o.camera.h);
+    let mut strip = image::RgbImage::new(3 * w, h);
+    for (i, c) in color.iter().enumerate() {
+        if o.depth[i] > 0.0 {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            let (r, g) = (c.map(srgb), o.rgb[i].map(srgb));
+            let byte = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+            strip.put_pixel(x, y, image::Rgb(g.map(byte)));
+            strip.put_pixel(x + w, y, image::Rgb(r.map(byte)));
+            let d = [0, 1, 2].map(|k| byte(4.0 * (r[k] - g[k]).abs()));
+            strip.put_pixel(x + 2 * w, y, image::Rgb(d));
+        }
+    }
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    strip
+        .save(path)
+        .map_err(|e| Error::io(path, std::io::Error::other(e.to_string())))
+}
+
+/// PSNR in sRGB over the pixels where the capture saw a surface.
+fn covered_psnr_srgb(color: &[[f32; 3]], o: &Observation) -> f64 {
+    let (mut se, mut n) = (0.0f64, 0usize);
+    for (i, c) in color.iter().enumerate() {
+        if o.depth[i] > 0.0 {
+            for (&a, &b) in c.iter().zip(&o.rgb[i]) {
+                let d = srgb(a) - srgb(b);
+                se += d * d;
+            }
+            n += 3;
+        }
+    }
+    -10.0 * (se / n.max(1) as f64).max(1e-20).log10()
+}
+
 fn evaluate(
     model: &Model,
     dataset: &Dataset,
@@ -479,30 +529,51 @@ fn evaluate(
     opts: &Options,
     t0: Instant,
 ) -> Result<Report> {
-    // Held-out views: PSNR over covered pixels, depth error.
+    // Held-out views: PSNR over covered pixels, depth error, a comparison image each.
     let mut psnrs = Vec::new();
-    let mut depth_err = Vec::new();
+    let mut depth_err: Vec<f64> = Vec::new();
+    let mut heldout = Vec::new();
     for (j, views) in held.iter().enumerate() {
+        let state = &dataset.states[train_states[j]].name;
         for o in views {
             let img = render_state(model, j, &o.camera);
-            let (mut se, mut n) = (0.0f64, 0usize);
-            for i in 0..o.depth.len() {
-                if o.depth[i] > 0.0 {
-                    for k in 0..3 {
-                        let d = srgb(img.color[i][k]) - srgb(o.rgb[i][k]);
-                        se += d * d;
-                    }
-                    n += 3;
+            let mut view_depth: Vec<f64> = (0..o.depth.len())
+                .filter(|&i| o.depth[i] > 0.0)
+                .map(|i| {
                     if img.alpha[i] > 0.0 {
-                        depth_err.push((img.depth[i] - o.depth[i]).abs() as f64);
+                        (img.depth[i] - o.depth[i]).abs() as f64
                     } else {
-                        depth_err.push(o.depth[i] as f64);
+                        o.depth[i] as f64
                     }
-                }
+                })
+                .collect();
+            if view_depth.is_empty() {
+                continue;
             }
-            if n > 0 {
-                psnrs.push(-10.0 * (se / n as f64).max(1e-20).log10());
-            }
+            let psnr = covered_psnr_srgb(&img.color, o);
+            psnrs.push(psnr);
+            let name = format!("heldout/{state}_{:03}.png", o.view);
+            save_comparison(&img.color, o, &opts.out.join(&name))?;
+            depth_err.extend(&view_depth);
+            view_depth.sort_by(|a, b| a.total_cmp(b));
+            heldout.push(HeldOutView {
+                state: state.clone(),
+                view: o.view,
+                psnr_srgb: psnr,
+                median_depth_error_m: view_depth[view_depth.len() / 2],
+                image: name,
+            });
+        }
+    }
+    // Training views, for the gap between fitting and generalising (images in `train/`).
+    let mut train_psnrs = Vec::new();
+    for (j, views) in train.iter().enumerate() {
+        let state = &dataset.states[train_states[j]].name;
+        for o in views {
+            let img = render_state(model, j, &o.camera);
+            train_psnrs.push(covered_psnr_srgb(&img.color, o));
+            let path = opts.out.join(format!("train/{state}_{:03}.png", o.view));
+            save_comparison(&img.color, o, &path)?;
         }
     }
     depth_err.sort_by(|a, b| a.total_cmp(b));
@@ -526,7 +597,7 @@ fn evaluate(
     }
     let extent = (hi - lo).length() as f64;
 
-    // Pose errors against the ground truth (evaluation only).
+    // Pose errors against the ground truth (evaluation only), forgiving declared symmetries.
     let mut pose_errors = Vec::new();
     let ref_k = train_states[0];
     for (j, &k) in train_states.iter().enumerate().skip(1) {
@@ -534,15 +605,25 @@ fn evaluate(
             let gt = dataset
                 .object_pose(k, &obj.name)?
                 .compose(&init::inverse(&dataset.object_pose(ref_k, &obj.name)?));
-            let est = model.poses[j][o];
+            let frame = match obj.reference_pose {
+                Some(_) => dataset.object_frame(o)?,
+                None => {
+                    let p = &model.components[o + 1].position;
+                    let n = (p.len() / 3).max(1) as f32;
+                    let c = p.chunks(3).fold(Vec3::ZERO, |a, q| a + Vec3::from_slice(q)) / n;
+                    Rigid {
+                        translation: c.to_array(),
+                        ..Rigid::IDENTITY
+                    }
+                }
+            };
+            let e = crate::eval::pose::pose_error(&gt, &model.poses[j][o], &frame, &obj.symmetries);
             pose_errors.push(PoseError {
                 state: dataset.states[k].name.clone(),
                 object: obj.name.clone(),
-                rotation_deg: rotation_angle_deg(&gt, &est),
-                translation_cm: 100.0
-                    * (Vec3::from_array(gt.translation) - Vec3::from_array(est.translation))
-                        .length(),
-                fitness: None,
+                rotation_deg: e.rotation_deg,
+                rotation_deg_ignoring_symmetry: e.rotation_deg_raw,
+                translation_cm: 100.0 * e.translation_m,
             });
         }
     }
@@ -581,6 +662,8 @@ fn evaluate(
         seconds: t0.elapsed().as_secs_f64(),
         heldout_psnr_srgb: psnrs.iter().sum::<f64>() / psnrs.len().max(1) as f64,
         heldout_views: psnrs.len(),
+        train_psnr_srgb: train_psnrs.iter().sum::<f64>() / train_psnrs.len().max(1) as f64,
+        heldout,
         heldout_median_depth_error_m: median,
         heldout_median_depth_error_rel: median / extent.max(1e-9),
         pose_errors,

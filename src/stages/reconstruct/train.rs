@@ -9,7 +9,8 @@
 //!
 //! Losses per view: L_RGB = 0.8 L1 + 0.2 D-SSIM on the capture's colour where its depth is
 //! valid (black elsewhere: the splats render over black and must leave the environment
-//! transparent), an opacity term |Â − 𝟙[D* > 0]| (eq. alpha-coverage, extended to push
+//! transparent), by default on display-encoded colours (sRGB, capture clamped to [0, 1]; the
+//! rendered colour passes through the state's colour matrix first), an opacity term |Â − 𝟙[D* > 0]| (eq. alpha-coverage, extended to push
 //! environment pixels to transparent), the scale regulariser (eq. scale-regularization), L1 to
 //! the reference depth, 1 − n̂·n* to the reference normals and, after a warm-up, 2DGS's depth-
 //! normal self-consistency (eqs. reconstruction-depth, reconstruction-normal).
@@ -35,9 +36,13 @@ pub struct Settings {
     pub lr_sh_dc: f32,
     pub lr_pose_translation: f32,
     pub lr_pose_rotation: f32,
+    /// Per-state colour matrix entries.
+    pub lr_colour: f32,
     /// First iteration at which object poses move (the surfels settle first).
     pub pose_from: u32,
     pub lambda_dssim: f32,
+    /// L_RGB on display-encoded colours ([`optim::rgb_loss_display`]) rather than linear ones.
+    pub display_loss: bool,
     pub lambda_alpha: f32,
     pub lambda_scale: f32,
     /// s_max of eq. scale-regularization, metres.
@@ -64,17 +69,24 @@ impl Settings {
     /// Minutes on a 2-core laptop for the `demo` dataset (128×96, 3 states × 8 views).
     pub fn fast() -> Settings {
         Settings {
-            iterations: 1500,
+            iterations: 3000,
             lr_position_init: 1.6e-4 * 4.0,
             lr_position_final: 1.6e-6 * 4.0,
             lr_rotation: 1e-3,
             lr_scale: 5e-3,
             lr_opacity: 5e-2,
             lr_sh_dc: 2.5e-3,
-            lr_pose_translation: 5e-4,
-            lr_pose_rotation: 1e-3,
-            pose_from: 300,
+            // A gentle refinement of the poses `align` found: on the demo, 5e-4 m / 1e-3 rad
+            // from iteration 300 drifted them from ~1 cm to ~2 cm off (highlights and shadows
+            // move with each state's lighting and pull the photometric gradient), while these
+            // rates from iteration 1000 (surfels settled, densification over) brought them
+            // closer (align alone: 0.6-1.8 cm; refined: 0.4-1.2 cm).
+            lr_pose_translation: 1e-4,
+            lr_pose_rotation: 2e-4,
+            lr_colour: 1e-3,
+            pose_from: 1000,
             lambda_dssim: optim::LAMBDA_DSSIM,
+            display_loss: true,
             lambda_alpha: 0.05,
             lambda_scale: 1.0,
             s_max: 0.05,
@@ -120,9 +132,12 @@ pub struct RawComponent {
     pub rotation: Vec<f32>,
     pub log_scale: Vec<f32>,
     pub logit_opacity: Vec<f32>,
-    /// SH coefficients per training state: each state was lit by its own environment, so the
-    /// baked appearance is per state while the geometry is shared (index 0 = reference state,
-    /// the one written to `scene.glb`).
+    /// SH coefficients: `sh[0]` is shared by every training state, `sh[1 + j]` is state j's
+    /// residual (each state was lit by its own environment, so the baked appearance differs per
+    /// state while the geometry is shared). State j draws `sh[0] + sh[1 + j]` through its colour
+    /// matrix ([`Model::colour`]). A surfel no view of state j saw keeps a zero residual, so it
+    /// shows the appearance the other states taught the shared part, in state j's overall colour,
+    /// rather than whatever colour it was initialised with.
     pub sh: Vec<Vec<f32>>,
     /// Carried through untouched (stage 3 optimises them).
     pub base_color: Vec<[f32; 3]>,
@@ -130,7 +145,8 @@ pub struct RawComponent {
     pub roughness: Vec<f32>,
 }
 
-/// The shared parameter groups; groups 4.. are the SH of each training state.
+/// The shared parameter groups; group 4 is the shared SH, groups 5.. each training state's SH
+/// residual.
 const GROUPS: [(&str, usize); 4] = [
     ("position", 3),
     ("rotation", 4),
@@ -148,10 +164,12 @@ fn sigmoid(x: f32) -> f32 {
 }
 
 impl RawComponent {
-    /// The component's parameters with the same SH for each of `states` training states.
+    /// The component's parameters: its SH as the shared appearance, zero residuals for each of
+    /// `states` training states.
     pub fn from_component(c: &Component, states: usize) -> RawComponent {
         let s = &c.surfels;
         let sh: Vec<f32> = s.sh.iter().flatten().copied().collect();
+        let zero = vec![0.0; sh.len()];
         RawComponent {
             name: c.name.clone(),
             id: c.id,
@@ -160,7 +178,9 @@ impl RawComponent {
             rotation: s.rotation.iter().flatten().copied().collect(),
             log_scale: s.scale.iter().flatten().map(|v| v.ln()).collect(),
             logit_opacity: s.opacity.iter().map(|&a| logit(a)).collect(),
-            sh: vec![sh; states.max(1)],
+            sh: std::iter::once(sh)
+                .chain(std::iter::repeat_n(zero, states.max(1)))
+                .collect(),
             base_color: s.base_color.clone(),
             metallic: s.metallic.clone(),
             roughness: s.roughness.clone(),
@@ -202,8 +222,8 @@ impl RawComponent {
         GROUPS.len() + self.sh.len()
     }
 
-    /// The activated surfels with state `j`'s appearance: normalised quaternions, exp scales,
-    /// sigmoid opacities.
+    /// The activated surfels with state `j`'s SH (shared + residual; the state's colour matrix is
+    /// applied to the rendered image): normalised quaternions, exp scales, sigmoid opacities.
     pub fn surfels(&self, j: usize) -> Surfels {
         let n = self.len();
         let stride = self.stride();
@@ -226,8 +246,9 @@ impl RawComponent {
             .map(|i| [0, 1].map(|k| self.log_scale[2 * i + k].exp()))
             .collect();
         s.opacity = self.logit_opacity.iter().map(|&x| sigmoid(x)).collect();
+        let (shared, residual) = (&self.sh[0], &self.sh[1 + j]);
         s.sh = (0..n * stride)
-            .map(|i| [0, 1, 2].map(|k| self.sh[j][3 * i + k]))
+            .map(|i| [0, 1, 2].map(|k| shared[3 * i + k] + residual[3 * i + k]))
             .collect();
         s.base_color = self.base_color.clone();
         s.metallic = self.metallic.clone();
@@ -269,16 +290,38 @@ impl RawComponent {
     }
 }
 
-/// The model being trained: components (0 = background) and object poses per training state.
+/// The model being trained: components (0 = background), object poses and a colour matrix per
+/// training state.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Model {
     pub components: Vec<RawComponent>,
     /// `poses[j][o]`: object o (component o + 1) in training state j, relative to the reference
     /// state (j = 0, always identity).
     pub poses: Vec<Vec<Rigid>>,
+    /// `colour[j]`: a 3×3 matrix (row-major) applied to state j's rendered colour, the state's
+    /// overall white balance and exposure against the reference (`colour[0]` = identity). As the
+    /// splatted colour is linear in the SH, `M Σ w c = Σ w (M c)`: it acts on every surfel alike.
+    pub colour: Vec<[f32; 9]>,
+}
+
+/// The 3×3 identity, row-major.
+pub const IDENTITY3: [f32; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+
+fn apply3(m: &[f32; 9], c: [f32; 3]) -> [f32; 3] {
+    [0, 1, 2].map(|r| m[3 * r] * c[0] + m[3 * r + 1] * c[1] + m[3 * r + 2] * c[2])
 }
 
 impl Model {
+    /// A model with identity colour matrices.
+    pub fn new(components: Vec<RawComponent>, poses: Vec<Vec<Rigid>>) -> Model {
+        let colour = vec![IDENTITY3; poses.len().max(1)];
+        Model {
+            components,
+            poses,
+            colour,
+        }
+    }
+
     pub fn surfel_count(&self) -> usize {
         self.components.iter().map(RawComponent::len).sum()
     }
@@ -376,6 +419,16 @@ impl Trainer {
                 adam.add_group(&group_name(c, g), comp.len() * width, width, schedule);
             }
         }
+        for j in 1..model.colour.len() {
+            adam.add_group(
+                &format!("colour{j}"),
+                9,
+                9,
+                Schedule::Constant {
+                    lr: settings.lr_colour,
+                },
+            );
+        }
         let mut pose_params = Vec::new();
         for (j, poses) in model.poses.iter().enumerate() {
             let mut row = Vec::new();
@@ -445,6 +498,8 @@ impl Trainer {
         let img = &fwd.image;
         let (w, h) = (img.width as usize, img.height as usize);
         let n = w * h;
+        let m = self.model.colour[j];
+        let color: Vec<[f32; 3]> = img.color.iter().map(|&c| apply3(&m, c)).collect();
         let valid: Vec<f32> = obs
             .depth
             .iter()
@@ -459,9 +514,27 @@ impl Trainer {
         let mut grad = ImageGrad::zeros(img.width, img.height);
         let mut losses = Losses::default();
 
-        let rgb = optim::rgb_loss(&img.color, &target, w, h, s.lambda_dssim);
+        let rgb = if s.display_loss {
+            optim::rgb_loss_display(&color, &target, w, h, s.lambda_dssim)
+        } else {
+            optim::rgb_loss(&color, &target, w, h, s.lambda_dssim)
+        };
         losses.rgb = rgb.value;
-        grad.color = rgb.grad;
+        // Through the colour matrix: ∂L/∂C = Mᵀ ∂L/∂(MC), ∂L/∂M = Σ_p ∂L/∂(MC)_p C_pᵀ.
+        let mut g_colour = [0.0f32; 9];
+        grad.color = rgb
+            .grad
+            .iter()
+            .zip(&img.color)
+            .map(|(g, c)| {
+                for r in 0..3 {
+                    for k in 0..3 {
+                        g_colour[3 * r + k] += g[r] * c[k];
+                    }
+                }
+                [0, 1, 2].map(|k| m[k] * g[0] + m[3 + k] * g[1] + m[6 + k] * g[2])
+            })
+            .collect();
 
         // eq. alpha-coverage against the capture's coverage (1 where it saw a surface).
         let inv = 1.0 / n.max(1) as f32;
@@ -502,7 +575,6 @@ impl Trainer {
         drop(fwd);
 
         // Parameter updates, component by component.
-        let iteration = self.iteration;
         for (c, comp) in self.model.components.iter_mut().enumerate() {
             let sg = &grads.surfels[c];
             let act = &surfels[c];
@@ -544,14 +616,16 @@ impl Trainer {
                     }
                 });
             }
-            let groups = [g_pos, g_rot, g_scale, g_opacity, g_sh];
-            for (k, gr) in groups.iter().enumerate() {
-                // The SH gradient belongs to this view's state.
-                let g = if k < GROUPS.len() {
-                    k
-                } else {
-                    GROUPS.len() + j
-                };
+            // The SH gradient goes to the shared part and to this view's state's residual.
+            let groups = [
+                (0, &g_pos),
+                (1, &g_rot),
+                (2, &g_scale),
+                (3, &g_opacity),
+                (GROUPS.len(), &g_sh),
+                (GROUPS.len() + 1 + j, &g_sh),
+            ];
+            for (g, gr) in groups {
                 let gi = self
                     .adam
                     .group_index(&group_name(c, g))
@@ -562,8 +636,13 @@ impl Trainer {
         let total_surfels: usize = self.model.surfel_count();
         losses.scale /= total_surfels.max(1) as f32;
 
+        // The state's colour matrix (the reference state's is the identity: it fixes the gauge).
+        if j > 0 {
+            let gi = self.adam.group_index(&format!("colour{j}")).unwrap();
+            self.adam.step(gi, &mut self.model.colour[j], &g_colour);
+        }
         // Object poses of non-reference states (the reference state defines the object frame).
-        if j > 0 && iteration >= s.pose_from {
+        if j > 0 && self.iteration >= s.pose_from {
             for (o, tg) in grads.transforms.iter().skip(1).enumerate() {
                 let p = &mut self.pose_params[j][6 * o..6 * o + 6];
                 let (pt, pr) = p.split_at_mut(3);
@@ -667,7 +746,7 @@ impl Trainer {
                 id: 0,
                 surfels: new.clone(),
             },
-            comp.sh.len(),
+            comp.sh.len() - 1,
         );
         assert_eq!(
             raw.sh_degree, comp.sh_degree,
@@ -687,8 +766,14 @@ impl Trainer {
     }
 }
 
-/// Renders training state `j` of the model for `camera` (activated once, in parallel).
+/// Renders training state `j` of the model for `camera` (activated once, in parallel), with the
+/// state's colour matrix applied.
 pub fn render_state(model: &Model, j: usize, camera: &crate::scene::Camera) -> splat::SplatImage {
     let surfels: Vec<Surfels> = model.components.par_iter().map(|c| c.surfels(j)).collect();
-    splat::forward(&model.placements(&surfels, j), camera).image
+    let mut image = splat::forward(&model.placements(&surfels, j), camera).image;
+    if model.colour[j] != IDENTITY3 {
+        let m = model.colour[j];
+        image.color.iter_mut().for_each(|c| *c = apply3(&m, *c));
+    }
+    image
 }
