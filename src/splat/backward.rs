@@ -7,7 +7,7 @@
 //! order so that every tile's slots are read forwards; a third, in input order, carries each
 //! sum through the projection to the surfel's parameters and its placement.
 
-use super::forward::{clip, row_bits, tile_pixels, PREFETCH_AHEAD};
+use super::forward::{clip, row_bits, set_bits, tile_pixels, PREFETCH_AHEAD};
 use super::project::prefetch;
 use super::project::{facing_sign, hit, placement_frame, world_surfel, CULLED};
 use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, TransformGrad, FILTER_INV_VARIANCE};
@@ -234,10 +234,7 @@ fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; 
         for y in sy0..sy1 {
             let v = y as f32 + 0.5;
             let r = (y - y0) as usize;
-            let mut m = open[r] & cols;
-            while m != 0 {
-                let bit = m.trailing_zeros();
-                m &= m - 1;
+            for bit in set_bits(open[r] & cols) {
                 let x = x0 + bit;
                 let p = r * TILE as usize + bit as usize;
                 let u = x as f32 + 0.5;

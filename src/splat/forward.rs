@@ -106,6 +106,18 @@ pub(crate) fn row_bits(x0: u32, sx0: u32, sx1: u32) -> u32 {
     ((1u32 << b) - 1) & !((1u32 << a) - 1)
 }
 
+/// The set bits of `m`, lowest first (the columns of a tile row still to visit).
+#[inline]
+pub(crate) fn set_bits(mut m: u32) -> impl Iterator<Item = u32> {
+    std::iter::from_fn(move || {
+        (m != 0).then(|| {
+            let bit = m.trailing_zeros();
+            m &= m - 1;
+            bit
+        })
+    })
+}
+
 fn forward_tile(
     view: &View,
     splats: &[Splat],
@@ -139,10 +151,7 @@ fn forward_tile(
         for y in sy0..sy1 {
             let v = y as f32 + 0.5;
             let r = (y - y0) as usize;
-            let mut m = open[r] & cols;
-            while m != 0 {
-                let bit = m.trailing_zeros();
-                m &= m - 1;
+            for bit in set_bits(open[r] & cols) {
                 let x = x0 + bit;
                 let p = r * TILE as usize + bit as usize;
                 let Some(h) = hit(s, x as f32 + 0.5, v) else {

@@ -473,12 +473,7 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
 }
 
 fn srgb(x: f32) -> f64 {
-    let x = x.clamp(0.0, 1.0) as f64;
-    if x <= 0.0031308 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
+    crate::eval::srgb_encode(x) as f64
 }
 
 /// Writes capture | render | 4 × |difference| side by side, sRGB, over the pixels where the
