@@ -227,9 +227,10 @@ def obj_parts(kind: str) -> list:
     raise KeyError(kind)
 
 
-# Rotations about axes through an object's origin (its base centre) that leave its shape *and*
-# appearance unchanged, in its Y-up frame (Blender's +Z is +Y): {"axis", "order"}, order 0 =
-# continuous, n = n-fold (as BOP's symmetries_continuous/discrete). Written to dataset.json for
+# Rotations about axes through a point of an object (its origin, the base centre, unless "offset"
+# gives another) that leave its shape *and* appearance unchanged, in its Y-up frame (Blender's +Z
+# is +Y): {"axis", "order"[, "offset"]}, order 0 = continuous, n = n-fold (as BOP's
+# symmetries_continuous/discrete). Written to dataset.json for
 # evaluation only: a pose error forgives them (src/eval/pose.rs), since no image can tell them
 # apart. Only symmetries checked against obj_parts and MATERIALS are listed; kinds absent have none.
 SYMMETRIES = {
@@ -239,7 +240,10 @@ SYMMETRIES = {
     "pot": [{"axis": [0, 1, 0], "order": 2}],  # plain steel body, one handle each side
     "vase": [{"axis": [0, 1, 0], "order": 0}],  # plain glossy solid of revolution
     "ring": [{"axis": [0, 1, 0], "order": 0}],  # plain gold torus about +Z
-    "small_ball": [{"axis": [0, 1, 0], "order": 0}],  # plain sphere (its centre is off the origin)
+    # A plain sphere standing on its origin: every turn about its centre (0.07 m up) looks the
+    # same; two continuous axes through the centre say so (the error is then measured there).
+    "small_ball": [{"axis": [0, 1, 0], "order": 0, "offset": [0, 0.07, 0]},
+                   {"axis": [1, 0, 0], "order": 0, "offset": [0, 0.07, 0]}],
 }
 
 

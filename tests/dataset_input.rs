@@ -120,6 +120,20 @@ fn broken_json_and_header_fields_are_named() {
     let mut bad = v.clone();
     bad["states"][0]["split"] = json!("test");
     fails(dir.path(), &bad, &["split", "train"]);
+    // Symmetry axes of one object must meet at one point (pose errors are measured there).
+    let mut ok = v.clone();
+    ok["objects"][0]["symmetries"] = json!([
+        {"axis": [0, 1, 0], "order": 0, "offset": [0, 0.07, 0]},
+        {"axis": [1, 0, 0], "order": 0, "offset": [0, 0.07, 0]}
+    ]);
+    read(dir.path(), &ok).expect("a ball's two axes through its centre");
+    let mut bad = ok.clone();
+    bad["objects"][0]["symmetries"][1]["offset"] = json!([0, 0.05, 0]);
+    fails(
+        dir.path(),
+        &bad,
+        &["objects[0].symmetries[1].offset", "one point"],
+    );
 }
 
 #[test]

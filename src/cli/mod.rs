@@ -524,7 +524,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
         }
         for p in &report.pose_errors {
             eprintln!(
-                "  pose {} {}: {:.2} deg ({:.1} deg ignoring its symmetries), {:.2} cm at its origin",
+                "  pose {} {}: {:.2} deg ({:.1} deg ignoring its symmetries), {:.2} cm at its origin or symmetry centre",
                 p.state,
                 p.object,
                 p.rotation_deg,

@@ -8,25 +8,30 @@
 //! by any image, so, as the BOP benchmark does (Hodaň et al. 2020, "BOP challenge 2020 on 6D
 //! object localization", its `symmetries_continuous` / `symmetries_discrete`), the error is the
 //! least over the object's symmetry group: `min_S angle(S⁻¹ E)`, and the translation error is
-//! measured at the object's own origin `c` (a point on its symmetry axes, where every `S` fixes
-//! it): `|T̂ c − T c|`. Measured at the world origin instead, a 2° error of an object 2 m away
-//! would read as 7 cm.
+//! measured at a point `c` of the object that every `S` fixes (on all its symmetry axes):
+//! `|T̂ c − T c|`, the same for `T̂` and `T̂ S`. Measured at the world origin instead, a 2° error
+//! of an object 2 m away would read as 7 cm.
 //!
 //! Symmetries are given in the object's frame (`reference_pose` maps it to the reference world),
-//! each `{axis, order}` about an axis through the object's origin: order 0 is a continuous
-//! symmetry, order n ≥ 2 the n-fold one. Two non-parallel continuous axes make the object a
-//! uniformly coloured ball: every rotation about its origin is a symmetry.
+//! each `{axis, order, offset}` about the axis through `offset` (BOP's name; default the
+//! object's origin): order 0 is a continuous symmetry, order n ≥ 2 the n-fold one. The axes of
+//! one object meet at one point (the dataset reader checks that their offsets agree), which is
+//! `c`; without symmetries `c` is the object's origin. Two non-parallel continuous axes make the
+//! object a uniformly coloured ball: every rotation about its centre is a symmetry.
 
 use crate::scene::Rigid;
 use glam::{DMat3, DQuat, DVec3, Vec3};
 
-/// A rotational symmetry of an object about an axis through its origin, in its own frame.
+/// A rotational symmetry of an object about an axis through `offset`, in its own frame.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Symmetry {
     /// Axis direction (any length > 0).
     pub axis: [f32; 3],
     /// 0 = continuous, n ≥ 2 = n-fold.
     pub order: u32,
+    /// A point on the axis (object frame); the object's origin when absent.
+    #[serde(default)]
+    pub offset: [f32; 3],
 }
 
 /// Rotation and translation error of one estimate.
@@ -36,7 +41,8 @@ pub struct PoseError {
     pub rotation_deg: f64,
     /// Rotation angle of `T⁻¹ T̂` ignoring symmetries, degrees.
     pub rotation_deg_raw: f64,
-    /// `|T̂ c − T c|` at the object's origin `c` (reference world), metres.
+    /// `|T̂ c − T c|` at the point `c` every symmetry fixes (the object's origin when it has
+    /// none), reference world, metres.
     pub translation_m: f64,
 }
 
@@ -116,7 +122,8 @@ pub fn pose_error(
             })
             .fold(f64::INFINITY, f64::min)
     };
-    let at = |r: &Rigid| Vec3::from_array(r.transform_point(frame.translation)).as_dvec3();
+    let c = frame.transform_point(symmetries.first().map_or([0.0; 3], |s| s.offset));
+    let at = |r: &Rigid| Vec3::from_array(r.transform_point(c)).as_dvec3();
     PoseError {
         rotation_deg: rotation.to_degrees(),
         rotation_deg_raw: raw.to_degrees(),
@@ -180,6 +187,7 @@ mod tests {
         let continuous = [Symmetry {
             axis: [0.0, 1.0, 0.0],
             order: 0,
+            offset: [0.0; 3],
         }];
         let two_fold = [Symmetry {
             order: 2,
@@ -224,5 +232,38 @@ mod tests {
         let e = pose_error(&truth, &est, &frame, &[]);
         let expect = 2.0 * 2.0 * (1.0f64.to_radians()).sin();
         assert!((e.translation_m - expect).abs() < 1e-5, "{e:?}");
+    }
+
+    #[test]
+    fn a_ball_off_its_origin_is_measured_at_its_centre() {
+        // A plain ball of radius 7 cm standing on its origin (centre 7 cm above it, +Y): any
+        // turn about its centre looks the same, and moves the origin.
+        let frame = rigid(Vec3::Y, 20.0, [1.0, 0.0, -0.5]);
+        let centre = [0.0, 0.07, 0.0];
+        let ball = [Vec3::Y, Vec3::X].map(|a| Symmetry {
+            axis: a.to_array(),
+            order: 0,
+            offset: centre,
+        });
+        let truth = rigid(Vec3::Y, 35.0, [0.2, 0.0, 0.3]);
+        // 50° about a tilted axis through the centre, then 4 mm off.
+        let c = Vec3::from_array(frame.transform_point(centre));
+        let spin = rigid(Vec3::new(1.0, 0.3, 0.5), 50.0, [0.0; 3]);
+        let about_c = Rigid {
+            rotation: spin.rotation,
+            translation: (c - Quat::from_array(spin.rotation) * c).to_array(),
+        };
+        let mut est = truth.compose(&about_c);
+        est.translation[0] += 0.004;
+        let e = pose_error(&truth, &est, &frame, &ball);
+        assert_eq!(e.rotation_deg, 0.0);
+        assert!((e.rotation_deg_raw - 50.0).abs() < 1e-3, "{e:?}");
+        assert!((e.translation_m - 0.004).abs() < 1e-5, "{e:?}");
+        // Measured at its origin, the same estimate is centimetres off.
+        let origin = ball.map(|s| Symmetry {
+            offset: [0.0; 3],
+            ..s
+        });
+        assert!(pose_error(&truth, &est, &frame, &origin).translation_m > 0.05);
     }
 }

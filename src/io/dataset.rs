@@ -19,9 +19,9 @@ pub struct DatasetObject {
     /// the centre of its base) in the reference state's world.
     #[serde(default)]
     pub reference_pose: Option<[[f32; 4]; 4]>,
-    /// Ground truth, evaluation only: rotations about axes through the object's origin that
-    /// leave its shape and appearance unchanged (in its frame), so a pose error forgives them
-    /// ([`crate::eval::pose`]).
+    /// Ground truth, evaluation only: rotations about axes through one point of the object
+    /// (its origin unless `offset` says otherwise) that leave its shape and appearance unchanged
+    /// (in its frame), so a pose error forgives them ([`crate::eval::pose`]).
     #[serde(default)]
     pub symmetries: Vec<crate::eval::pose::Symmetry>,
 }
@@ -138,6 +138,15 @@ impl Dataset {
                         &d.file,
                         format!("{field}.symmetries[{k}]"),
                         "expected a non-zero finite axis and order 0 (continuous) or >= 2",
+                    ));
+                }
+                // Pose errors are measured at the point all axes share (eval::pose).
+                if s.offset.iter().any(|c| !c.is_finite()) || s.offset != o.symmetries[0].offset {
+                    return Err(Error::invalid(
+                        &d.file,
+                        format!("{field}.symmetries[{k}].offset"),
+                        "expected finite coordinates, the same for every symmetry of the object \
+                         (its axes meet at one point)",
                     ));
                 }
             }
