@@ -49,7 +49,8 @@ pub struct PoseError {
     pub rotation_deg: f64,
     /// The plain rotation angle of T⁻¹T̂, degrees (differs for symmetric objects).
     pub rotation_deg_ignoring_symmetry: f64,
-    /// At the object's origin (`reference_pose`; its surfels' centroid when the dataset has none).
+    /// At the object's origin (`reference_pose`; its surfels' centroid when the dataset has none),
+    /// or where its symmetry axes meet when they name a point (`offset`).
     pub translation_cm: f64,
 }
 
@@ -106,6 +107,16 @@ fn progress(quiet: bool, len: u64, msg: &str) -> indicatif::ProgressBar {
 fn say(quiet: bool, s: &str) {
     if !quiet {
         eprintln!("{s}");
+    }
+}
+
+/// A message above the progress bar, or a plain line when the bar is not drawn (stderr is a
+/// file or a pipe: a log of a long run should still say what happened).
+fn say_above(bar: &indicatif::ProgressBar, quiet: bool, s: &str) {
+    if bar.is_hidden() {
+        say(quiet, s);
+    } else {
+        bar.println(s);
     }
 }
 
@@ -285,6 +296,14 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                     .collect::<Result<_>>()?
             } else {
                 let t = Instant::now();
+                say(
+                    opts.quiet,
+                    &format!(
+                        "registering {} objects in {} states (point clouds, then rendered views)",
+                        objects.len(),
+                        train.len()
+                    ),
+                );
                 let reg =
                     register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
                 // The point-cloud registrations are candidates for the analysis-by-synthesis search,
@@ -360,15 +379,24 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         .open(&log_path)
         .map_err(|e| Error::io(&log_path, e))?;
     let completion_at = total / 3;
+    let t_train = Instant::now();
+    let start_iteration = trainer.iteration;
+    // Without a terminal the bar is not drawn: a plain line about every tenth of the run, on the
+    // log's 50-iteration grid.
+    let plain_every = (total / 10 / 50).max(1) * 50;
     let mut window = Losses::default();
     let mut window_n = 0u32;
     while trainer.iteration < total {
         if trainer.iteration == completion_at && completion_at > 0 {
             let added = complete(&mut trainer, &train, opts)?;
-            bar.println(format!(
-                "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
-                opts.tau_d
-            ));
+            say_above(
+                &bar,
+                opts.quiet,
+                &format!(
+                    "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
+                    opts.tau_d
+                ),
+            );
         }
         let l = trainer.step(&views);
         window.total += l.total;
@@ -389,11 +417,26 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                 "depth_normal": window.depth_normal / k,
             });
             writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
-            bar.set_prefix(format!(
+            let status = format!(
                 "loss {:.4} · {} surfels",
                 window.total / k,
                 trainer.model.surfel_count()
-            ));
+            );
+            if bar.is_hidden() && trainer.iteration % plain_every == 0 {
+                let done = trainer.iteration as f64 / total.max(1) as f64;
+                let spent = t_train.elapsed().as_secs_f64();
+                let ran = (trainer.iteration - start_iteration).max(1) as f64;
+                let left = spent / ran * (total - trainer.iteration) as f64;
+                say(
+                    opts.quiet,
+                    &format!(
+                        "training {}/{total} ({:.0} %) {status} · {spent:.0} s, ~{left:.0} s left",
+                        trainer.iteration,
+                        100.0 * done
+                    ),
+                );
+            }
+            bar.set_prefix(status);
             window = Losses::default();
             window_n = 0;
         }
