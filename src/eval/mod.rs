@@ -1,5 +1,6 @@
 //! Evaluation against ground truth: image and depth metrics, symmetry-aware object pose error.
 
+pub mod geometry;
 pub mod metrics;
 pub mod pose;
 

@@ -257,7 +257,7 @@ impl RawComponent {
     }
 
     /// Keeps surfels `keep` (in that order).
-    fn gather(&mut self, keep: &[usize]) {
+    pub fn gather(&mut self, keep: &[usize]) {
         for g in 0..self.groups() {
             let w = self.width(g);
             let v = self.group_mut(g);

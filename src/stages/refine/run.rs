@@ -1,0 +1,372 @@
+//! Stage 2 from files to files: `<work>/scene.glb` (stage 1) and the dataset's captures to
+//! `<work>/refined.glb` and `<work>/refine/{report.json, log.jsonl, checkpoint.json}`.
+
+use super::train::{Losses, Refiner, Settings, TrainState};
+use crate::error::{Error, Result};
+use crate::eval::geometry::{tally_state, GeometryFigures, GeometryTally, LeakOptions};
+use crate::io::dataset::{Dataset, Observation};
+use crate::io::AtomicFiles;
+use crate::scene::{Scene, BACKGROUND};
+use crate::stages::reconstruct::run::split;
+use crate::trace::TraceScene;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Checkpoints are written this often (iterations), and at the end.
+const CHECKPOINT_EVERY: u32 = 100;
+/// log.jsonl gets the mean losses of each window of this many iterations.
+const LOG_EVERY: u32 = 25;
+
+pub struct Options {
+    pub dataset: PathBuf,
+    /// The work folder: stage 1's `scene.glb` is read from it unless `scene` says otherwise.
+    pub work: PathBuf,
+    pub scene: Option<PathBuf>,
+    pub settings: Settings,
+    pub leaks: LeakOptions,
+    pub resume: bool,
+    pub quiet: bool,
+}
+
+/// The five figures of one state before and after.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct StateFigures {
+    pub state: String,
+    pub heldout_views: Vec<usize>,
+    pub before: GeometryFigures,
+    pub after: GeometryFigures,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Report {
+    pub dataset: String,
+    pub scene: String,
+    pub settings: Settings,
+    pub leak_options: LeakOptions,
+    pub iterations: u32,
+    pub seconds: f64,
+    pub surfels_before: usize,
+    pub surfels_after: usize,
+    pub pruned: usize,
+    /// Over the held-out views of every training state, traced with the state's poses.
+    pub before: GeometryFigures,
+    pub after: GeometryFigures,
+    pub states: Vec<StateFigures>,
+}
+
+fn say(quiet: bool, s: &str) {
+    if !quiet {
+        eprintln!("{s}");
+    }
+}
+
+/// Stage 1's scene, checked against the dataset: the same objects (names and mask ids) and a
+/// state for every training state.
+fn read_stage1(path: &Path, dataset: &Dataset) -> Result<Scene> {
+    if !path.is_file() {
+        return Err(Error::invalid(
+            path,
+            "scene",
+            "expected stage 1's scene here: run `lightfuse reconstruct <dataset> -o <work>` first (or pass --scene)",
+        ));
+    }
+    let scene = crate::io::read_scene(path)?;
+    if scene.components.first().map(|c| c.name.as_str()) != Some(BACKGROUND) {
+        return Err(Error::invalid(
+            path,
+            "components[0]",
+            format!("expected the {BACKGROUND:?} component first, as stage 1 writes it"),
+        ));
+    }
+    let objects: Vec<(&str, u32)> = scene.components[1..]
+        .iter()
+        .map(|c| (c.name.as_str(), c.id))
+        .collect();
+    let want: Vec<(&str, u32)> = dataset
+        .objects
+        .iter()
+        .map(|o| (o.name.as_str(), o.id))
+        .collect();
+    if objects != want {
+        return Err(Error::invalid(
+            path,
+            "components",
+            format!(
+                "expected the dataset's objects {want:?} (name, mask id) in its order, found {objects:?}; was this scene made from {}?",
+                dataset.file.display()
+            ),
+        ));
+    }
+    for k in dataset.train_states() {
+        let name = &dataset.states[k].name;
+        if scene.state_index(name).is_none() {
+            return Err(Error::invalid(
+                path,
+                "states",
+                format!("expected a state named {name:?} (a training state of the dataset)"),
+            ));
+        }
+    }
+    Ok(scene)
+}
+
+fn extent(scene: &Scene) -> f32 {
+    scene
+        .states
+        .iter()
+        .filter_map(|s| scene.bounds_in_state(s))
+        .map(|(lo, hi)| {
+            let d: f32 = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum();
+            d.sqrt()
+        })
+        .fold(0.0, f32::max)
+}
+
+/// The five figures per training state over its held-out views (every view of the state decides
+/// what blocks a shadow ray).
+fn measure(
+    scene: &Scene,
+    states: &[(String, usize, Vec<&Observation>, Vec<&Observation>)],
+    leaks: &LeakOptions,
+) -> (GeometryFigures, Vec<GeometryFigures>) {
+    let traced = TraceScene::new(scene);
+    let ext = extent(scene);
+    let mut all = GeometryTally::default();
+    let mut per = Vec::new();
+    for (name, _, held, every) in states {
+        let state = &scene.states[scene.state_index(name).expect("checked by read_stage1")];
+        let placed = traced.place_state(state);
+        let t = tally_state(&placed, held, every, ext, leaks);
+        per.push(t.figures());
+        all.merge(t);
+    }
+    (all.figures(), per)
+}
+
+fn checkpoint_path(dir: &Path) -> PathBuf {
+    dir.join("checkpoint.json")
+}
+
+/// What a resumed run needs besides the scene: the refiner, and the figures measured before
+/// the stage ran (so a resumed report still says "before").
+#[derive(Serialize, Deserialize)]
+struct Checkpoint {
+    refiner: Refiner,
+    before: GeometryFigures,
+    before_states: Vec<GeometryFigures>,
+    surfels_before: usize,
+}
+
+fn write_checkpoint(dir: &Path, c: &Checkpoint) -> Result<()> {
+    let bytes = serde_json::to_vec(c).map_err(|e| Error::Usage(format!("checkpoint: {e}")))?;
+    let mut files = AtomicFiles::new();
+    files.write(&checkpoint_path(dir), &bytes)?;
+    files.commit()
+}
+
+fn read_checkpoint(path: &Path, settings: &Settings) -> Result<Checkpoint> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let c: Checkpoint = serde_json::from_slice(&bytes)
+        .map_err(|e| Error::invalid(path, "checkpoint", format!("unreadable: {e}")))?;
+    if c.refiner.settings != *settings {
+        return Err(Error::invalid(
+            path,
+            "settings",
+            "the checkpoint was made with other settings: resume with the same preset and switches, or start afresh without --resume",
+        ));
+    }
+    Ok(c)
+}
+
+/// Stage 2: refines stage 1's geometry for ray tracing (eq. geometry-objective).
+pub fn refine(opts: &Options) -> Result<Report> {
+    let t0 = Instant::now();
+    let dataset = Dataset::read(&opts.dataset)?;
+    let scene_path = opts
+        .scene
+        .clone()
+        .unwrap_or_else(|| opts.work.join("scene.glb"));
+    let scene = read_stage1(&scene_path, &dataset)?;
+    let out_dir = opts.work.join("refine");
+    std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
+
+    say(opts.quiet, "reading the training captures");
+    let train_states = dataset.train_states();
+    let (train, held) = split(dataset.training_observations()?);
+    // (name, dataset index, held-out views, every view) per training state.
+    let every: Vec<Vec<&Observation>> = train
+        .iter()
+        .zip(&held)
+        .map(|(t, h)| t.iter().chain(h.iter()).collect())
+        .collect();
+    let eval_states: Vec<(String, usize, Vec<&Observation>, Vec<&Observation>)> = train_states
+        .iter()
+        .enumerate()
+        .map(|(j, &k)| {
+            (
+                dataset.states[k].name.clone(),
+                k,
+                held[j].iter().collect(),
+                every[j].clone(),
+            )
+        })
+        .collect();
+    let loop_states: Vec<TrainState> = train_states
+        .iter()
+        .enumerate()
+        .filter(|(j, _)| !train[*j].is_empty())
+        .map(|(j, &k)| {
+            let s = scene
+                .state_index(&dataset.states[k].name)
+                .expect("checked by read_stage1");
+            TrainState {
+                views: train[j].iter().collect(),
+                transforms: scene.states[s].transforms.clone(),
+            }
+        })
+        .collect();
+    if loop_states.is_empty() {
+        return Err(Error::invalid(
+            &dataset.file,
+            "states",
+            "expected training views to refine on (view 0 of every 8 is held out)",
+        ));
+    }
+
+    let ckpt = checkpoint_path(&out_dir);
+    let log_path = out_dir.join("log.jsonl");
+    let resumed = opts.resume && ckpt.is_file();
+    let mut c = if resumed {
+        let c = read_checkpoint(&ckpt, &opts.settings)?;
+        say(
+            opts.quiet,
+            &format!(
+                "resuming from {} at iteration {}",
+                ckpt.display(),
+                c.refiner.iteration
+            ),
+        );
+        c
+    } else {
+        say(
+            opts.quiet,
+            "measuring stage 1's geometry by ray tracing the held-out views",
+        );
+        let (before, before_states) = measure(&scene, &eval_states, &opts.leaks);
+        Checkpoint {
+            refiner: Refiner::new(opts.settings.clone(), &scene.components),
+            before,
+            before_states,
+            surfels_before: scene.surfel_count(),
+        }
+    };
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .write(true)
+        .append(resumed)
+        .truncate(!resumed)
+        .open(&log_path)
+        .map_err(|e| Error::io(&log_path, e))?;
+
+    let total = opts.settings.iterations;
+    let bar = crate::stages::reconstruct::run::progress_bar(
+        opts.quiet,
+        total as u64,
+        "refining",
+    );
+    bar.set_position(c.refiner.iteration as u64);
+    let start = c.refiner.iteration;
+    let t_loop = Instant::now();
+    let plain_every = (total / 10).max(1);
+    let mut window = Losses::default();
+    let mut window_n = 0u32;
+    while c.refiner.iteration < total {
+        let l = c.refiner.step(&loop_states);
+        window.total += l.total;
+        window.alpha += l.alpha;
+        window.scale += l.scale;
+        window.depth += l.depth;
+        window.normal += l.normal;
+        window.depth_normal += l.depth_normal;
+        window_n += 1;
+        bar.inc(1);
+        let it = c.refiner.iteration;
+        if it % LOG_EVERY == 0 || it == total {
+            let k = window_n.max(1) as f32;
+            let line = json!({
+                "iteration": it, "surfels": c.refiner.surfel_count(),
+                "total": window.total / k, "alpha": window.alpha / k, "scale": window.scale / k,
+                "depth": window.depth / k, "normal": window.normal / k,
+                "depth_normal": window.depth_normal / k,
+                "seconds": t0.elapsed().as_secs_f64(),
+            });
+            writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
+            let status = format!(
+                "loss {:.4} · {} surfels",
+                window.total / k,
+                c.refiner.surfel_count()
+            );
+            if bar.is_hidden() && it % plain_every == 0 {
+                let spent = t_loop.elapsed().as_secs_f64();
+                let left = spent / (it - start).max(1) as f64 * (total - it) as f64;
+                say(
+                    opts.quiet,
+                    &format!(
+                        "refining {it}/{total} ({:.0} %) {status} · {spent:.0} s, ~{left:.0} s left",
+                        100.0 * it as f64 / total.max(1) as f64
+                    ),
+                );
+            }
+            bar.set_prefix(status);
+            window = Losses::default();
+            window_n = 0;
+        }
+        if it % CHECKPOINT_EVERY == 0 || it == total {
+            write_checkpoint(&out_dir, &c)?;
+        }
+    }
+    bar.finish_and_clear();
+
+    let mut refined = scene.clone();
+    refined.components = c.refiner.scene_components();
+    let refined_path = opts.work.join("refined.glb");
+    crate::io::write_scene(&refined, &refined_path)?;
+    say(
+        opts.quiet,
+        "measuring the refined geometry by ray tracing the held-out views",
+    );
+    let (after, after_states) = measure(&refined, &eval_states, &opts.leaks);
+    let report = Report {
+        dataset: dataset.file.display().to_string(),
+        scene: scene_path.display().to_string(),
+        settings: opts.settings.clone(),
+        leak_options: opts.leaks,
+        iterations: c.refiner.iteration,
+        seconds: t0.elapsed().as_secs_f64(),
+        surfels_before: c.surfels_before,
+        surfels_after: c.refiner.surfel_count(),
+        pruned: c.refiner.pruned,
+        before: c.before.clone(),
+        after,
+        states: eval_states
+            .iter()
+            .zip(c.before_states.iter().zip(after_states))
+            .map(|((name, _, held, _), (b, a))| StateFigures {
+                state: name.clone(),
+                heldout_views: held.iter().map(|o| o.view).collect(),
+                before: b.clone(),
+                after: a,
+            })
+            .collect(),
+    };
+    let mut files = AtomicFiles::new();
+    files.write(
+        &out_dir.join("report.json"),
+        &serde_json::to_vec_pretty(&report).expect("report serialises"),
+    )?;
+    files.commit()?;
+    Ok(report)
+}

@@ -1,0 +1,497 @@
+//! The stage-2 loop (eq. geometry-objective): batches of pixel patches drawn across the training
+//! views of every training state, each state assembled with stage 1's object poses
+//! (eq. state-assembly), ray traced with the renderer's own hit and compositing rules
+//! (eqs. gaussian-response, surface-record), compared with the captures' depth, normals and
+//! coverage, and the shared geometry (centres, raw rotations, log scales, logit opacities of the
+//! background and every object) updated by Adam through [`crate::trace::Placed::composite_backward`].
+//! Object poses, appearance and materials are not touched.
+//!
+//! Per patch of `patch × patch` pixels (a patch, not scattered pixels, because the
+//! depth-derived normal of L_DN^ray needs each pixel's four neighbours):
+//! - L_α: mean |Σw − 𝟙[D* > 0]| (eq. alpha-coverage, extended as in stage 1 to push pixels that
+//!   saw the environment to transparent: those are where a false occluder shows);
+//! - L_D: eq. reconstruction-depth on the traced depth z̄ = Σw t / Σw (rays with d·forward = 1,
+//!   so t is planar depth), confidence = the capture's validity;
+//! - L_N: 1 − Σw n · N* (the composited normal sum, as stage 1 splats it: not renormalised, so
+//!   it also asks for coverage where a surface was seen);
+//! - L_DN^ray: 1 − N^D · N*, N^D the normals of the traced depth patch (central differences,
+//!   [`crate::optim::depth_normal_loss`] with the reference normals);
+//! - L_s: eq. scale-regularization over every surfel.
+//!
+//! Each term is averaged over the batch's patches; the switches of the paper's Table 3 drop
+//! one each ([`Switches`]).
+
+use crate::io::dataset::Observation;
+use crate::optim::{self, Adam, Schedule};
+use crate::scene::synthetic::SplitMix;
+use crate::scene::{Camera, Component, Rigid, Surfels};
+use crate::splat;
+use crate::stages::reconstruct::train::RawComponent;
+use crate::trace::{RecordGrad, SurfaceRecord, TraceRay, TraceScene};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Which terms of eq. geometry-objective are on (the paper's Table 3 turns each off in turn).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Switches {
+    pub coverage: bool,
+    pub scale: bool,
+    pub depth: bool,
+    pub normal: bool,
+}
+
+impl Default for Switches {
+    fn default() -> Self {
+        Switches {
+            coverage: true,
+            scale: true,
+            depth: true,
+            normal: true,
+        }
+    }
+}
+
+/// Everything the loop's behaviour depends on; presets below. Saved in the checkpoint and the
+/// report so a run can be repeated.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    pub iterations: u32,
+    /// Side of a pixel patch.
+    pub patch: u32,
+    /// Patches per iteration (rays = patches × patch²).
+    pub patches: u32,
+    pub lr_position_init: f32,
+    pub lr_position_final: f32,
+    pub lr_rotation: f32,
+    pub lr_scale: f32,
+    pub lr_opacity: f32,
+    pub lambda_alpha: f32,
+    pub lambda_scale: f32,
+    /// s_max of eq. scale-regularization, metres.
+    pub s_max: f32,
+    pub lambda_depth: f32,
+    pub lambda_normal: f32,
+    pub lambda_depth_normal: f32,
+    /// Surfels whose opacity falls below this are removed every `prune_every` iterations: they
+    /// cannot be seen (the tracer drops hits fainter than 1/255) but still cost traversal.
+    pub prune_opacity: f32,
+    pub prune_every: u32,
+    pub switches: Switches,
+    pub seed: u64,
+}
+
+impl Settings {
+    /// Minutes on this 2-core machine for the demo dataset.
+    pub fn fast() -> Settings {
+        Settings {
+            iterations: 600,
+            patch: 8,
+            patches: 64,
+            // Stage 1 ends at 6.4e-6 m per step; stage 2 starts a little above it (the tracer's
+            // gradients pull surfels that splatting left in the wrong place) and decays.
+            lr_position_init: 1e-4,
+            lr_position_final: 1e-6,
+            lr_rotation: 1e-3,
+            lr_scale: 5e-3,
+            lr_opacity: 5e-2,
+            lambda_alpha: 0.1,
+            lambda_scale: 1.0,
+            s_max: 0.05,
+            lambda_depth: 0.1,
+            lambda_normal: 0.05,
+            lambda_depth_normal: 0.05,
+            prune_opacity: 0.005,
+            prune_every: 100,
+            switches: Switches::default(),
+            seed: 0,
+        }
+    }
+
+    /// The paper's scale: 16,384 rays per iteration (as stage 3's batches) for 5,000 iterations.
+    pub fn paper() -> Settings {
+        Settings {
+            iterations: 5000,
+            patches: 256,
+            ..Settings::fast()
+        }
+    }
+}
+
+/// The losses of one iteration, weighted as they enter the objective.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
+pub struct Losses {
+    pub alpha: f32,
+    pub scale: f32,
+    pub depth: f32,
+    pub normal: f32,
+    pub depth_normal: f32,
+    pub total: f32,
+}
+
+const GROUPS: [(&str, usize); 4] = [
+    ("position", 3),
+    ("rotation", 4),
+    ("log_scale", 2),
+    ("logit_opacity", 1),
+];
+
+fn group_of(c: &mut RawComponent, g: usize) -> &mut Vec<f32> {
+    match g {
+        0 => &mut c.position,
+        1 => &mut c.rotation,
+        2 => &mut c.log_scale,
+        _ => &mut c.logit_opacity,
+    }
+}
+
+/// One training state's views and the rigid transform of every component in it.
+pub struct TrainState<'a> {
+    pub views: Vec<&'a Observation>,
+    pub transforms: Vec<Rigid>,
+}
+
+/// The refinement: raw geometry of every component, Adam, and where the run stands.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Refiner {
+    pub settings: Settings,
+    pub components: Vec<RawComponent>,
+    pub adam: Adam,
+    pub iteration: u32,
+    pub pruned: usize,
+    rng: u64,
+}
+
+/// A patch's camera: the view's intrinsics shifted so that pixel (x0, y0) is its (0, 0).
+fn patch_camera(cam: &Camera, x0: u32, y0: u32, side: u32) -> Camera {
+    Camera {
+        cx: cam.cx - x0 as f32,
+        cy: cam.cy - y0 as f32,
+        w: side,
+        h: side,
+        ..*cam
+    }
+}
+
+/// One patch: which view, where, and its pixels' indices in the view.
+struct Patch {
+    state: usize,
+    view: usize,
+    x0: u32,
+    y0: u32,
+}
+
+impl Refiner {
+    pub fn new(settings: Settings, components: &[Component]) -> Refiner {
+        let components: Vec<RawComponent> = components
+            .iter()
+            .map(|c| RawComponent::from_component(c, 0))
+            .collect();
+        let mut adam = Adam::new();
+        for (c, comp) in components.iter().enumerate() {
+            for (g, (name, width)) in GROUPS.iter().enumerate() {
+                let schedule = match g {
+                    0 => Schedule::Exponential {
+                        lr_init: settings.lr_position_init,
+                        lr_final: settings.lr_position_final,
+                        steps: settings.iterations as u64,
+                    },
+                    1 => Schedule::Constant {
+                        lr: settings.lr_rotation,
+                    },
+                    2 => Schedule::Constant {
+                        lr: settings.lr_scale,
+                    },
+                    _ => Schedule::Constant {
+                        lr: settings.lr_opacity,
+                    },
+                };
+                adam.add_group(&format!("c{c}.{name}"), comp.len() * width, *width, schedule);
+            }
+        }
+        Refiner {
+            rng: settings.seed ^ 0x2EF1_7E00_0000_0002,
+            settings,
+            components,
+            adam,
+            iteration: 0,
+            pruned: 0,
+        }
+    }
+
+    /// The activated surfels of every component (SH, materials as they came in).
+    pub fn surfels(&self) -> Vec<Surfels> {
+        self.components.iter().map(|c| c.surfels(0)).collect()
+    }
+
+    pub fn surfel_count(&self) -> usize {
+        self.components.iter().map(RawComponent::len).sum()
+    }
+
+    /// The refined components, named and numbered as they came in.
+    pub fn scene_components(&self) -> Vec<Component> {
+        self.components
+            .iter()
+            .map(|c| Component {
+                name: c.name.clone(),
+                id: c.id,
+                surfels: c.surfels(0),
+            })
+            .collect()
+    }
+
+    fn draw_patches(&mut self, states: &[TrainState]) -> Vec<Patch> {
+        let total: usize = states.iter().map(|s| s.views.len()).sum();
+        let side = self.settings.patch;
+        let mut rng = SplitMix(self.rng);
+        let mut out = Vec::with_capacity(self.settings.patches as usize);
+        for _ in 0..self.settings.patches {
+            let mut r = (rng.next_u64() % total as u64) as usize;
+            let mut state = 0;
+            while r >= states[state].views.len() {
+                r -= states[state].views.len();
+                state += 1;
+            }
+            let cam = &states[state].views[r].camera;
+            let x0 = (rng.next_u64() % (cam.w.saturating_sub(side) + 1) as u64) as u32;
+            let y0 = (rng.next_u64() % (cam.h.saturating_sub(side) + 1) as u64) as u32;
+            out.push(Patch {
+                state,
+                view: r,
+                x0,
+                y0,
+            });
+        }
+        self.rng = rng.next_u64();
+        out
+    }
+
+    /// One iteration: trace a batch of patches of every state, losses, backward, Adam.
+    pub fn step(&mut self, states: &[TrainState]) -> Losses {
+        let s = self.settings.clone();
+        let sw = s.switches;
+        let surfels = self.surfels();
+        let refs: Vec<&Surfels> = surfels.iter().collect();
+        let scene = TraceScene::from_components(&refs);
+        let patches = self.draw_patches(states);
+        let side = s.patch.min(
+            states
+                .iter()
+                .flat_map(|st| st.views.iter().map(|v| v.camera.w.min(v.camera.h)))
+                .min()
+                .unwrap_or(s.patch),
+        );
+        let per_patch = (side * side) as usize;
+        let inv_p = 1.0 / patches.len().max(1) as f32;
+
+        // Rays of every patch, patch-major.
+        let rays: Vec<TraceRay> = patches
+            .iter()
+            .flat_map(|p| {
+                let cam = &states[p.state].views[p.view].camera;
+                (0..per_patch).map(move |i| {
+                    let (x, y) = (p.x0 + i as u32 % side, p.y0 + i as u32 / side);
+                    let (origin, dir) =
+                        crate::eval::geometry::planar_ray(cam, x as f32 + 0.5, y as f32 + 0.5);
+                    TraceRay {
+                        origin,
+                        dir,
+                        t_min: 0.0,
+                        t_max: f32::INFINITY,
+                    }
+                })
+            })
+            .collect();
+        let placed: Vec<_> = states.iter().map(|st| scene.place(&st.transforms)).collect();
+        let records: Vec<SurfaceRecord> = rays
+            .par_iter()
+            .enumerate()
+            .with_min_len(64)
+            .map(|(i, r)| {
+                placed[patches[i / per_patch].state].composite(r.origin, r.dir, r.t_min, r.t_max)
+            })
+            .collect();
+
+        // Per patch: the losses and dL/d(record sums) of its pixels.
+        let per: Vec<(Losses, Vec<RecordGrad>)> = patches
+            .par_iter()
+            .enumerate()
+            .map(|(k, p)| {
+                let obs = states[p.state].views[p.view];
+                let rec = &records[k * per_patch..(k + 1) * per_patch];
+                patch_losses(&s, obs, p, side, rec, inv_p)
+            })
+            .collect();
+        let mut losses = Losses::default();
+        let mut grads = Vec::with_capacity(rays.len());
+        for (l, g) in per {
+            losses.alpha += l.alpha;
+            losses.depth += l.depth;
+            losses.normal += l.normal;
+            losses.depth_normal += l.depth_normal;
+            grads.extend(g);
+        }
+
+        // Backward, state by state (each its own placement), gradients summed per component.
+        let mut g_surfels: Vec<crate::trace::TraceSurfelGrads> = Vec::new();
+        for (j, pl) in placed.iter().enumerate() {
+            let idx: Vec<usize> = (0..rays.len())
+                .filter(|&i| patches[i / per_patch].state == j)
+                .collect();
+            if idx.is_empty() {
+                continue;
+            }
+            let r: Vec<TraceRay> = idx.iter().map(|&i| rays[i]).collect();
+            let g: Vec<RecordGrad> = idx.iter().map(|&i| grads[i]).collect();
+            let out = pl.composite_backward(&refs, &r, &g, false);
+            if g_surfels.is_empty() {
+                g_surfels = out.surfels;
+            } else {
+                for (acc, add) in g_surfels.iter_mut().zip(out.surfels) {
+                    acc.add(&add);
+                }
+            }
+        }
+        drop(placed);
+        drop(scene);
+
+        let total = self.surfel_count().max(1) as f32;
+        for (c, comp) in self.components.iter_mut().enumerate() {
+            let len = comp.len();
+            if len == 0 || g_surfels.len() <= c {
+                continue;
+            }
+            let act = &surfels[c];
+            let sg = &g_surfels[c];
+            // eq. scale-regularization over every surfel of the scene.
+            let scale_reg = optim::scale_regularization(&act.scale, s.s_max);
+            let lambda_s = if sw.scale { s.lambda_scale } else { 0.0 };
+            let share = len as f32 / total;
+            losses.scale += lambda_s * scale_reg.value * share;
+            let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
+            let g_pos: Vec<f32> = sg.position.iter().flatten().map(|&v| finite(v)).collect();
+            let g_rot: Vec<f32> = sg.rotation.iter().flatten().map(|&v| finite(v)).collect();
+            let g_scale: Vec<f32> = (0..len)
+                .flat_map(|i| {
+                    [0, 1].map(|k| {
+                        finite(splat::log_scale_grad(
+                            act.scale[i][k],
+                            sg.scale[i][k] + lambda_s * share * scale_reg.grad[i][k],
+                        ))
+                    })
+                })
+                .collect();
+            let g_opacity: Vec<f32> = (0..len)
+                .map(|i| finite(splat::logit_grad(act.opacity[i], sg.opacity[i])))
+                .collect();
+            for (g, gr) in [(0, &g_pos), (1, &g_rot), (2, &g_scale), (3, &g_opacity)] {
+                let gi = self
+                    .adam
+                    .group_index(&format!("c{c}.{}", GROUPS[g].0))
+                    .expect("every component has its groups");
+                self.adam.step(gi, group_of(comp, g), gr);
+            }
+        }
+        losses.total =
+            losses.alpha + losses.scale + losses.depth + losses.normal + losses.depth_normal;
+        self.iteration += 1;
+        if s.prune_every > 0 && self.iteration % s.prune_every == 0 {
+            self.prune();
+        }
+        losses
+    }
+
+    /// Removes surfels fainter than `prune_opacity` (their Adam moments with them).
+    pub fn prune(&mut self) {
+        let min = self.settings.prune_opacity;
+        for (c, comp) in self.components.iter_mut().enumerate() {
+            let keep: Vec<usize> = (0..comp.len())
+                .filter(|&i| sigmoid(comp.logit_opacity[i]) >= min)
+                .collect();
+            if keep.len() == comp.len() {
+                continue;
+            }
+            self.pruned += comp.len() - keep.len();
+            comp.gather(&keep);
+            for (name, _) in GROUPS {
+                let gi = self
+                    .adam
+                    .group_index(&format!("c{c}.{name}"))
+                    .expect("every component has its groups");
+                self.adam.keep_points(gi, &keep);
+            }
+        }
+    }
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// The losses of one patch (already divided by the batch's patch count) and dL/d(record sums)
+/// of its pixels.
+fn patch_losses(
+    s: &Settings,
+    obs: &Observation,
+    p: &Patch,
+    side: u32,
+    rec: &[SurfaceRecord],
+    inv_p: f32,
+) -> (Losses, Vec<RecordGrad>) {
+    let sw = s.switches;
+    let n = rec.len();
+    let w = obs.camera.w as usize;
+    let pix = |i: usize| (p.y0 as usize + i / side as usize) * w + p.x0 as usize + i % side as usize;
+    let ref_depth: Vec<f32> = (0..n).map(|i| obs.depth[pix(i)]).collect();
+    let ref_normal: Vec<[f32; 3]> = (0..n).map(|i| obs.normal[pix(i)]).collect();
+    let depth: Vec<f32> = rec.iter().map(SurfaceRecord::mean_depth).collect();
+    let normal_sum: Vec<[f32; 3]> = rec.iter().map(|r| r.normal).collect();
+    let mut l = Losses::default();
+    let mut g_alpha = vec![0.0f32; n];
+    let mut g_depth = vec![0.0f32; n];
+    let mut g_normal = vec![[0.0f32; 3]; n];
+    if sw.coverage {
+        let inv = inv_p / n as f32;
+        for i in 0..n {
+            let target = if ref_depth[i] > 0.0 { 1.0 } else { 0.0 };
+            let d = rec[i].alpha - target;
+            l.alpha += s.lambda_alpha * d.abs() * inv;
+            if d != 0.0 {
+                g_alpha[i] = s.lambda_alpha * inv * d.signum();
+            }
+        }
+    }
+    if sw.depth {
+        let dl = optim::depth_l1(&depth, &ref_depth, None);
+        l.depth = s.lambda_depth * dl.value * inv_p;
+        for (g, d) in g_depth.iter_mut().zip(&dl.grad) {
+            *g += s.lambda_depth * inv_p * d;
+        }
+    }
+    if sw.normal {
+        let nl = optim::normal_loss(&normal_sum, &ref_normal, None);
+        l.normal = s.lambda_normal * nl.value * inv_p;
+        for (g, d) in g_normal.iter_mut().zip(&nl.grad) {
+            for k in 0..3 {
+                g[k] += s.lambda_normal * inv_p * d[k];
+            }
+        }
+        // L_DN^ray: normals of the traced depth against the captured ones.
+        let cam = patch_camera(&obs.camera, p.x0, p.y0, side);
+        let dn = optim::depth_normal_loss(&depth, &cam, &ref_normal, None);
+        l.depth_normal = s.lambda_depth_normal * dn.value * inv_p;
+        for (g, d) in g_depth.iter_mut().zip(&dn.grad_depth) {
+            *g += s.lambda_depth_normal * inv_p * d;
+        }
+    }
+    let grads = (0..n)
+        .map(|i| {
+            let mut g = rec[i].mean_depth_grad(g_depth[i]);
+            g.alpha += g_alpha[i];
+            for k in 0..3 {
+                g.normal[k] += g_normal[i][k];
+            }
+            g
+        })
+        .collect();
+    (l, grads)
+}

@@ -1,0 +1,268 @@
+//! Stage 2 repairs damaged geometry. A correct surfel room (floor, two walls, a box that moves
+//! between two states) is traced to make the "captures" (planar depth and normals, as a dataset
+//! holds them); the scene is then damaged the ways splat-trained surfels go wrong for ray tracing
+//! (holes punched, discs inflated, normals tilted, opacities lowered) and refined by the stage-2
+//! loop on the training views of both states. Every one of the five figures of
+//! `docs/geometry-metrics.md`, measured on held-out views, must improve by the stated factor.
+//!
+//! Why these factors: they are about half of what the run achieves (measured with the seeds
+//! below: see the printed figures with `--nocapture`), so the test fails if the repair loses
+//! half its effect, and does not fail on float reordering. The damaged scene is far from the
+//! intact one on every figure; the intact one is not reached exactly because the loop has a
+//! few hundred iterations of 2,048 rays and no densification.
+
+use glam::{Quat, Vec3};
+use lightfuse::eval::geometry::{tally_state, GeometryFigures, LeakOptions};
+use lightfuse::io::dataset::Observation;
+use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::{Camera, Component, Rigid, Surfels};
+use lightfuse::stages::refine::train::{Refiner, Settings, TrainState};
+use lightfuse::trace::TraceScene;
+
+const SPACING: f32 = 0.04;
+
+fn plane(
+    s: &mut Surfels,
+    rng: &mut SplitMix,
+    origin: Vec3,
+    a: Vec3,
+    b: Vec3,
+    (na, nb): (usize, usize),
+) {
+    let n = a.cross(b).normalize();
+    let rot = Quat::from_mat3(&glam::Mat3::from_cols(a.normalize(), b.normalize(), n));
+    for i in 0..na {
+        for j in 0..nb {
+            let ja = rng.range(-0.2, 0.2);
+            let jb = rng.range(-0.2, 0.2);
+            let p = origin
+                + a.normalize() * (SPACING * (i as f32 + 0.5 + ja))
+                + b.normalize() * (SPACING * (j as f32 + 0.5 + jb));
+            s.push(
+                p.to_array(),
+                rot.normalize().to_array(),
+                [SPACING, SPACING],
+                0.95,
+                &[[0.5, 0.5, 0.5]],
+                [0.5; 3],
+                0.0,
+                0.5,
+            );
+        }
+    }
+}
+
+/// Floor, back wall and left wall (background) and a 0.4 m box (object 1).
+fn room() -> Vec<Component> {
+    let mut rng = SplitMix(3);
+    let mut bg = Surfels::with_sh_degree(0);
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(-1.0, 0.0, 1.0),
+        Vec3::X,
+        Vec3::NEG_Z,
+        (50, 50),
+    );
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(-1.0, 0.0, -1.0),
+        Vec3::X,
+        Vec3::Y,
+        (50, 25),
+    );
+    plane(
+        &mut bg,
+        &mut rng,
+        Vec3::new(-1.0, 0.0, -1.0),
+        Vec3::Y,
+        Vec3::Z,
+        (25, 50),
+    );
+    let mut obj = Surfels::with_sh_degree(0);
+    let c = Vec3::new(0.2, 0.2, 0.0);
+    let h = 0.2;
+    let k = (10, 10);
+    for (o, a, b) in [
+        (Vec3::new(-h, -h, h), Vec3::X, Vec3::Y),   // +Z face
+        (Vec3::new(h, -h, -h), Vec3::NEG_X, Vec3::Y), // −Z face
+        (Vec3::new(h, -h, h), Vec3::NEG_Z, Vec3::Y), // +X face
+        (Vec3::new(-h, -h, -h), Vec3::Z, Vec3::Y),  // −X face
+        (Vec3::new(-h, h, h), Vec3::X, Vec3::NEG_Z), // top
+    ] {
+        plane(&mut obj, &mut rng, c + o, a, b, k);
+    }
+    vec![
+        Component {
+            name: "background".into(),
+            id: 0,
+            surfels: bg,
+        },
+        Component {
+            name: "box".into(),
+            id: 1,
+            surfels: obj,
+        },
+    ]
+}
+
+fn states() -> Vec<Vec<Rigid>> {
+    let moved = Rigid {
+        rotation: Quat::from_rotation_y(0.5).to_array(),
+        translation: [-0.3, 0.0, 0.35],
+    };
+    vec![
+        vec![Rigid::IDENTITY, Rigid::IDENTITY],
+        vec![Rigid::IDENTITY, moved],
+    ]
+}
+
+fn cameras() -> Vec<Camera> {
+    let eyes = [
+        [0.9, 0.8, 0.9],
+        [0.2, 1.0, 0.95],
+        [0.95, 0.6, 0.1],
+        [-0.5, 0.9, 0.9],
+        [0.6, 1.2, 0.5],
+        [0.9, 0.4, 0.6],
+        [0.0, 0.7, 0.9],
+        [0.7, 0.9, -0.3],
+        [0.95, 1.0, 0.95],
+    ];
+    eyes.iter()
+        .map(|&e| Camera::look_at(e, [-0.3, 0.15, -0.4], 64, 48, 45.0))
+        .collect()
+}
+
+/// The captures of the intact scene: depth and unit normal where the traced alpha is ≥ ½.
+fn capture(components: &[Component], transforms: &[Rigid], state: usize) -> Vec<Observation> {
+    let refs: Vec<&Surfels> = components.iter().map(|c| &c.surfels).collect();
+    let scene = TraceScene::from_components(&refs);
+    let placed = scene.place(transforms);
+    cameras()
+        .into_iter()
+        .enumerate()
+        .map(|(v, camera)| {
+            let t = lightfuse::eval::geometry::trace_view(&placed, &camera);
+            let n = t.alpha.len();
+            let hit = |i: usize| t.alpha[i] >= 0.5;
+            Observation {
+                state,
+                view: v,
+                camera,
+                rgb: vec![[0.0; 3]; n],
+                depth: (0..n).map(|i| if hit(i) { t.depth[i] } else { 0.0 }).collect(),
+                normal: (0..n)
+                    .map(|i| if hit(i) { t.normal[i] } else { [0.0; 3] })
+                    .collect(),
+                mask: vec![0; n],
+            }
+        })
+        .collect()
+}
+
+/// Holes punched, discs inflated, normals tilted and opacities lowered.
+fn damage(components: &[Component]) -> Vec<Component> {
+    let mut rng = SplitMix(11);
+    components
+        .iter()
+        .map(|c| {
+            let s = &c.surfels;
+            // Holes: every surfel within 7 cm of a few random centres is removed.
+            let centres: Vec<Vec3> = (0..6)
+                .map(|_| Vec3::from_array(s.position[(rng.next_u64() % s.len() as u64) as usize]))
+                .collect();
+            let mut out = Surfels::with_sh_degree(0);
+            for i in 0..s.len() {
+                let p = Vec3::from_array(s.position[i]);
+                if centres.iter().any(|q| q.distance(p) < 0.07) {
+                    continue;
+                }
+                let mut rot = s.rotation[i];
+                let mut scale = s.scale[i];
+                let mut opacity = s.opacity[i];
+                let r = rng.f32();
+                if r < 0.1 {
+                    scale = scale.map(|x| 3.0 * x);
+                } else if r < 0.4 {
+                    let axis = Vec3::new(rng.range(-1.0, 1.0), 0.0, rng.range(-1.0, 1.0));
+                    let q = Quat::from_array(rot);
+                    let tilt = Quat::from_axis_angle(
+                        q * axis.normalize_or(Vec3::X),
+                        25f32.to_radians(),
+                    );
+                    rot = (tilt * q).normalize().to_array();
+                } else if r < 0.6 {
+                    opacity *= 0.3;
+                }
+                out.push(
+                    s.position[i],
+                    rot,
+                    scale,
+                    opacity,
+                    s.sh_of(i),
+                    s.base_color[i],
+                    s.metallic[i],
+                    s.roughness[i],
+                );
+            }
+            Component {
+                surfels: out,
+                ..c.clone()
+            }
+        })
+        .collect()
+}
+
+fn measure(components: &[Component], captures: &[Vec<Observation>]) -> GeometryFigures {
+    let refs: Vec<&Surfels> = components.iter().map(|c| &c.surfels).collect();
+    let scene = TraceScene::from_components(&refs);
+    let mut all = lightfuse::eval::geometry::GeometryTally::default();
+    for (k, tf) in states().iter().enumerate() {
+        let placed = scene.place(tf);
+        let every: Vec<&Observation> = captures[k].iter().collect();
+        let held: Vec<&Observation> = captures[k].iter().filter(|o| o.view % 8 == 0).collect();
+        all.merge(tally_state(&placed, &held, &every, 4.0, &LeakOptions::default()));
+    }
+    all.figures()
+}
+
+#[test]
+fn refine_repairs_a_damaged_scene() {
+    let intact = room();
+    let captures: Vec<Vec<Observation>> = states()
+        .iter()
+        .enumerate()
+        .map(|(k, tf)| capture(&intact, tf, k))
+        .collect();
+    let damaged = damage(&intact);
+    let truth = measure(&intact, &captures);
+    let before = measure(&damaged, &captures);
+
+    let mut settings = Settings::fast();
+    settings.iterations = 300;
+    settings.patches = 32;
+    let mut refiner = Refiner::new(settings.clone(), &damaged);
+    let train: Vec<TrainState> = states()
+        .into_iter()
+        .zip(&captures)
+        .map(|(transforms, caps)| TrainState {
+            views: caps.iter().filter(|o| o.view % 8 != 0).collect(),
+            transforms,
+        })
+        .collect();
+    for _ in 0..settings.iterations {
+        refiner.step(&train);
+    }
+    let after = measure(&refiner.scene_components(), &captures);
+    println!("intact  {truth:?}\ndamaged {before:?}\nrefined {after:?}");
+
+    assert!(truth.holes < 0.01 && truth.light_leaks < 0.02, "{truth:?}");
+    assert!(before.blocked_rays > 500, "too few blocked rays to judge: {before:?}");
+    assert!(after.depth_median_m < before.depth_median_m / 1.5, "depth");
+    assert!(after.normal_mean_deg < before.normal_mean_deg / 2.0, "normals");
+    assert!(after.holes < before.holes / 2.0, "holes");
+    assert!(after.false_occlusion < before.false_occlusion / 2.0, "false occlusion");
+    assert!(after.light_leaks < before.light_leaks / 2.0, "leaks");
+}
