@@ -1,3 +1,4 @@
 //! The paper's stages, each a plain function of files (DESIGN §4).
 
+pub mod common;
 pub mod reconstruct;

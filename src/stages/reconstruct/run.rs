@@ -17,10 +17,10 @@ use crate::error::{Error, Result};
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Component, Rigid, Scene, State};
+use crate::stages::common::{read_checkpoint, say, write_checkpoint, Progress, StageLog};
 use glam::Vec3;
 use serde::Serialize;
 use serde_json::json;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -88,38 +88,6 @@ pub struct Report {
     pub oracle_poses: bool,
 }
 
-fn progress(quiet: bool, len: u64, msg: &str) -> indicatif::ProgressBar {
-    if quiet {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(len);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{msg:12} [{bar:30}] {pos}/{len} {elapsed} eta {eta} {prefix}",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    bar.set_message(msg.to_string());
-    bar
-}
-
-fn say(quiet: bool, s: &str) {
-    if !quiet {
-        eprintln!("{s}");
-    }
-}
-
-/// A message above the progress bar, or a plain line when the bar is not drawn (stderr is a
-/// file or a pipe: a log of a long run should still say what happened).
-fn say_above(bar: &indicatif::ProgressBar, quiet: bool, s: &str) {
-    if bar.is_hidden() {
-        say(quiet, s);
-    } else {
-        bar.println(s);
-    }
-}
-
 /// Splits the observations of each training state into (training, held-out): views with index
 /// ≡ 0 (mod [`HOLDOUT`]) are held out.
 pub fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Observation>>) {
@@ -135,14 +103,6 @@ pub fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Obse
 
 fn checkpoint_path(out: &Path) -> PathBuf {
     out.join("checkpoint.json")
-}
-
-fn write_checkpoint(out: &Path, trainer: &Trainer) -> Result<()> {
-    let bytes =
-        serde_json::to_vec(trainer).map_err(|e| Error::Usage(format!("checkpoint: {e}")))?;
-    let mut files = AtomicFiles::new();
-    files.write(&checkpoint_path(out), &bytes)?;
-    files.commit()
 }
 
 /// The scene the model stands for: components and one state per training state.
@@ -244,14 +204,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     let mut trainer =
         if opts.resume && checkpoint_path(&opts.out).is_file() {
             let path = checkpoint_path(&opts.out);
-            let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-            let t: Trainer = serde_json::from_slice(&bytes).map_err(|e| {
-                Error::invalid(
-                    &path,
-                    "checkpoint",
-                    format!("expected a LightFuse checkpoint: {e}"),
-                )
-            })?;
+            let t: Trainer = read_checkpoint(&path)?;
             t.adam.validate(&path)?;
             let states = train.len();
             if t.model.poses.len() != states
@@ -370,33 +323,24 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     // Training (item 6) with completion (item 5).
     let views: Vec<Vec<&Observation>> = train.iter().map(|v| v.iter().collect()).collect();
     let total = trainer.settings.iterations;
-    let bar = progress(opts.quiet, total as u64, "training");
-    bar.set_position(trainer.iteration as u64);
-    let log_path = opts.out.join("log.jsonl");
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&log_path)
-        .map_err(|e| Error::io(&log_path, e))?;
-    let completion_at = total / 3;
-    let t_train = Instant::now();
-    let start_iteration = trainer.iteration;
     // Without a terminal the bar is not drawn: a plain line about every tenth of the run, on the
     // log's 50-iteration grid.
     let plain_every = (total / 10 / 50).max(1) * 50;
+    let mut bar =
+        Progress::new(opts.quiet, total as u64, "training").plain_every(plain_every as u64);
+    // A fresh run in a used directory appends too (as a resumed one does).
+    let mut log = StageLog::append(&opts.out.join("log.jsonl"))?;
+    let completion_at = total / 3;
+    bar.start_at(trainer.iteration as u64);
     let mut window = Losses::default();
     let mut window_n = 0u32;
     while trainer.iteration < total {
         if trainer.iteration == completion_at && completion_at > 0 {
             let added = complete(&mut trainer, &train, opts)?;
-            say_above(
-                &bar,
-                opts.quiet,
-                &format!(
-                    "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
-                    opts.tau_d
-                ),
-            );
+            bar.println(&format!(
+                "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
+                opts.tau_d
+            ));
         }
         let l = trainer.step(&views);
         window.total += l.total;
@@ -416,35 +360,20 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                 "scale": window.scale / k, "depth": window.depth / k, "normal": window.normal / k,
                 "depth_normal": window.depth_normal / k,
             });
-            writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
-            let status = format!(
+            log.write(&line)?;
+            bar.status(&format!(
                 "loss {:.4} · {} surfels",
                 window.total / k,
                 trainer.model.surfel_count()
-            );
-            if bar.is_hidden() && trainer.iteration % plain_every == 0 {
-                let done = trainer.iteration as f64 / total.max(1) as f64;
-                let spent = t_train.elapsed().as_secs_f64();
-                let ran = (trainer.iteration - start_iteration).max(1) as f64;
-                let left = spent / ran * (total - trainer.iteration) as f64;
-                say(
-                    opts.quiet,
-                    &format!(
-                        "training {}/{total} ({:.0} %) {status} · {spent:.0} s, ~{left:.0} s left",
-                        trainer.iteration,
-                        100.0 * done
-                    ),
-                );
-            }
-            bar.set_prefix(status);
+            ));
             window = Losses::default();
             window_n = 0;
         }
         if trainer.iteration % 500 == 0 || trainer.iteration == total {
-            write_checkpoint(&opts.out, &trainer)?;
+            write_checkpoint(&checkpoint_path(&opts.out), &trainer)?;
         }
     }
-    bar.finish_and_clear();
+    bar.finish();
 
     let scene = scene_of(&trainer.model, &dataset, &train_states);
     crate::io::write_scene(&scene, &opts.out.join("scene.glb"))?;
