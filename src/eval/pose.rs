@@ -180,9 +180,7 @@ mod tests {
         // is frame · R_y(θ) · frame⁻¹).
         let spin = |deg: f32| {
             let r = rigid(Vec3::Y, deg, [0.0; 3]);
-            frame
-                .compose(&r)
-                .compose(&crate::stages::reconstruct::init::inverse(&frame))
+            frame.compose(&r).compose(&frame.inverse())
         };
         let continuous = [Symmetry {
             axis: [0.0, 1.0, 0.0],

@@ -122,15 +122,6 @@ impl PointCloud {
     }
 }
 
-/// The inverse rigid transform, x ↦ Rᵀ (x − t).
-pub fn inverse(t: &Rigid) -> Rigid {
-    let qi = t.quat().normalize().inverse();
-    Rigid {
-        rotation: qi.to_array(),
-        translation: (-(qi * Vec3::from_array(t.translation))).to_array(),
-    }
-}
-
 /// Options of [`backproject`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BackprojectOptions {
@@ -458,7 +449,7 @@ pub fn initial_components(
         background.extend(&cloud.with_mask(0));
         for (o, obj) in objects.iter().enumerate() {
             let pts = cloud.with_mask(obj.id);
-            per_object[o].extend(&pts.transformed(&inverse(&pose[o])));
+            per_object[o].extend(&pts.transformed(&pose[o].inverse()));
         }
     }
     let mut out = vec![Component {

@@ -242,7 +242,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                             .map(|o| {
                                 let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
                                 let pose = dataset.object_pose(k, &o.name)?;
-                                Ok(pose.compose(&init::inverse(&ref_pose)))
+                                Ok(pose.compose(&ref_pose.inverse()))
                             })
                             .collect::<Result<Vec<_>>>()
                     })
@@ -417,7 +417,7 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
                 let mut p = seeds.position[i];
                 let mut n = seeds.normal[i];
                 if c > 0 {
-                    let inv = init::inverse(&trainer.model.poses[j][c - 1]);
+                    let inv = trainer.model.poses[j][c - 1].inverse();
                     p = inv.transform_point(p);
                     n = (inv.quat() * Vec3::from_array(n)).to_array();
                 }
@@ -571,7 +571,7 @@ fn evaluate(
         for (o, obj) in dataset.objects.iter().enumerate() {
             let gt = dataset
                 .object_pose(k, &obj.name)?
-                .compose(&init::inverse(&dataset.object_pose(ref_k, &obj.name)?));
+                .compose(&dataset.object_pose(ref_k, &obj.name)?.inverse());
             let frame = match obj.reference_pose {
                 Some(_) => dataset.object_frame(o)?,
                 None => {
