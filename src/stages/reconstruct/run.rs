@@ -14,6 +14,10 @@
 use super::train::{render_state, Losses, Model, RawComponent, Settings, Trainer};
 use super::{align, completion, init, register, segment};
 use crate::error::{Error, Result};
+use crate::eval::pose::pose_error;
+use crate::eval::report::{
+    covered_psnr_srgb, depth_errors, median, save_comparison, ObjectPoseError,
+};
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Component, Rigid, Scene, State};
@@ -38,20 +42,6 @@ pub struct Options {
     pub voxel: f32,
     /// Depth-discrepancy threshold τ_D of eq. completion-mask, metres.
     pub tau_d: f32,
-}
-
-/// An estimated object pose against the ground truth ([`crate::eval::pose`]).
-#[derive(Clone, Debug, Serialize)]
-pub struct PoseError {
-    pub state: String,
-    pub object: String,
-    /// Least rotation error over the object's declared symmetries, degrees.
-    pub rotation_deg: f64,
-    /// The plain rotation angle of T⁻¹T̂, degrees (differs for symmetric objects).
-    pub rotation_deg_ignoring_symmetry: f64,
-    /// At the object's origin (`reference_pose`; its surfels' centroid when the dataset has none),
-    /// or where its symmetry axes meet when they name a point (`offset`).
-    pub translation_cm: f64,
 }
 
 /// One held-out view's figures.
@@ -81,7 +71,7 @@ pub struct Report {
     /// the scene's extent (diagonal of the training points' bounds).
     pub heldout_median_depth_error_m: f64,
     pub heldout_median_depth_error_rel: f64,
-    pub pose_errors: Vec<PoseError>,
+    pub pose_errors: Vec<ObjectPoseError>,
     /// Per object: share of its true surface points (masked reference depth) whose nearest
     /// surfel carries its label.
     pub label_share: Vec<(String, f64)>,
@@ -444,49 +434,6 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
     Ok(added)
 }
 
-fn srgb(x: f32) -> f64 {
-    crate::eval::srgb_encode(x) as f64
-}
-
-/// Writes capture | render | 4 × |difference| side by side, sRGB, over the pixels where the
-/// capture saw a surface (black elsewhere).
-fn save_comparison(color: &[[f32; 3]], o: &Observation, path: &Path) -> Result<()> {
-    let (w, h) = (o.camera.w, o.camera.h);
-    let mut strip = image::RgbImage::new(3 * w, h);
-    for (i, c) in color.iter().enumerate() {
-        if o.depth[i] > 0.0 {
-            let (x, y) = (i as u32 % w, i as u32 / w);
-            let (r, g) = (c.map(srgb), o.rgb[i].map(srgb));
-            let byte = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-            strip.put_pixel(x, y, image::Rgb(g.map(byte)));
-            strip.put_pixel(x + w, y, image::Rgb(r.map(byte)));
-            let d = [0, 1, 2].map(|k| byte(4.0 * (r[k] - g[k]).abs()));
-            strip.put_pixel(x + 2 * w, y, image::Rgb(d));
-        }
-    }
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    strip
-        .save(path)
-        .map_err(|e| Error::io(path, std::io::Error::other(e.to_string())))
-}
-
-/// PSNR in sRGB over the pixels where the capture saw a surface.
-fn covered_psnr_srgb(color: &[[f32; 3]], o: &Observation) -> f64 {
-    let (mut se, mut n) = (0.0f64, 0usize);
-    for (i, c) in color.iter().enumerate() {
-        if o.depth[i] > 0.0 {
-            for (&a, &b) in c.iter().zip(&o.rgb[i]) {
-                let d = srgb(a) - srgb(b);
-                se += d * d;
-            }
-            n += 3;
-        }
-    }
-    -10.0 * (se / n.max(1) as f64).max(1e-20).log10()
-}
-
 fn evaluate(
     model: &Model,
     dataset: &Dataset,
@@ -504,30 +451,27 @@ fn evaluate(
         let state = &dataset.states[train_states[j]].name;
         for o in views {
             let img = render_state(model, j, &o.camera);
-            let mut view_depth: Vec<f64> = (0..o.depth.len())
-                .filter(|&i| o.depth[i] > 0.0)
-                .map(|i| {
-                    if img.alpha[i] > 0.0 {
-                        (img.depth[i] - o.depth[i]).abs() as f64
-                    } else {
-                        o.depth[i] as f64
-                    }
-                })
-                .collect();
+            let mut view_depth = depth_errors(&img.depth, &img.alpha, &o.depth);
             if view_depth.is_empty() {
                 continue;
             }
-            let psnr = covered_psnr_srgb(&img.color, o);
+            let psnr = covered_psnr_srgb(&img.color, &o.rgb, &o.depth);
             psnrs.push(psnr);
             let name = format!("heldout/{state}_{:03}.png", o.view);
-            save_comparison(&img.color, o, &opts.out.join(&name))?;
+            save_comparison(
+                &img.color,
+                &o.rgb,
+                &o.depth,
+                o.camera.w,
+                o.camera.h,
+                &opts.out.join(&name),
+            )?;
             depth_err.extend(&view_depth);
-            view_depth.sort_by(|a, b| a.total_cmp(b));
             heldout.push(HeldOutView {
                 state: state.clone(),
                 view: o.view,
                 psnr_srgb: psnr,
-                median_depth_error_m: view_depth[view_depth.len() / 2],
+                median_depth_error_m: median(&mut view_depth),
                 image: name,
             });
         }
@@ -538,16 +482,12 @@ fn evaluate(
         let state = &dataset.states[train_states[j]].name;
         for o in views {
             let img = render_state(model, j, &o.camera);
-            train_psnrs.push(covered_psnr_srgb(&img.color, o));
+            train_psnrs.push(covered_psnr_srgb(&img.color, &o.rgb, &o.depth));
             let path = opts.out.join(format!("train/{state}_{:03}.png", o.view));
-            save_comparison(&img.color, o, &path)?;
+            save_comparison(&img.color, &o.rgb, &o.depth, o.camera.w, o.camera.h, &path)?;
         }
     }
-    depth_err.sort_by(|a, b| a.total_cmp(b));
-    let median = depth_err
-        .get(depth_err.len() / 2)
-        .copied()
-        .unwrap_or(f64::NAN);
+    let median = median(&mut depth_err);
     // Scene extent from the training captures' points.
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for views in train {
@@ -584,13 +524,10 @@ fn evaluate(
                     }
                 }
             };
-            let e = crate::eval::pose::pose_error(&gt, &model.poses[j][o], &frame, &obj.symmetries);
-            pose_errors.push(PoseError {
+            pose_errors.push(ObjectPoseError {
                 state: dataset.states[k].name.clone(),
                 object: obj.name.clone(),
-                rotation_deg: e.rotation_deg,
-                rotation_deg_ignoring_symmetry: e.rotation_deg_raw,
-                translation_cm: 100.0 * e.translation_m,
+                error: pose_error(&gt, &model.poses[j][o], &frame, &obj.symmetries),
             });
         }
     }
