@@ -303,9 +303,7 @@ fn demo() {
             let gt = ds
                 .object_pose(k, &obj.name)
                 .unwrap()
-                .compose(&init::inverse(
-                    &ds.object_pose(states[0], &obj.name).unwrap(),
-                ));
+                .compose(&ds.object_pose(states[0], &obj.name).unwrap().inverse());
             let c = {
                 let s = &refs[o];
                 s.position

@@ -4,7 +4,8 @@
 
 use base64::Engine;
 use glam::{DVec3, Quat, Vec3};
-use lightfuse::io::mesh::{read_mesh_scene, srgb_to_linear};
+use lightfuse::io::mesh::read_mesh_scene;
+use lightfuse::scene::mesh::srgb_to_linear;
 use lightfuse::scene::surfelize::{
     surfelize, ObjectSelection, SurfelizeOptions, SIGMA_PER_SPACING,
 };

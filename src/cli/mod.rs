@@ -567,9 +567,9 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
                 "  pose {} {}: {:.2} deg ({:.1} deg ignoring its symmetries), {:.2} cm at its origin or symmetry centre",
                 p.state,
                 p.object,
-                p.rotation_deg,
-                p.rotation_deg_ignoring_symmetry,
-                p.translation_cm
+                p.error.rotation_deg,
+                p.error.rotation_deg_raw,
+                100.0 * p.error.translation_m
             );
         }
         for (name, share) in &report.label_share {

@@ -14,24 +14,15 @@
 
 use super::{Cli, RenderArgs};
 use crate::error::{Error, Result};
-use crate::io::dataset::{Dataset, Frame, DATASET_FORMAT};
+use crate::io::cameras::read_views;
 use crate::io::exr::Channels;
-use crate::scene::{Camera, Environment, Scene, State};
-use crate::shade::estimator::{Estimator, Pixel, PixelFilter};
+use crate::scene::{Environment, Scene, State};
+use crate::shade::estimator::{Estimator, PixelFilter};
+use crate::shade::render::render_image;
 use crate::shade::EnvMap;
 use crate::trace::TraceScene;
-use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// Image tiles are this many pixels square; a tile is one rayon task.
-const TILE: u32 = 16;
-
-/// A camera to render and the name its files take.
-struct View {
-    name: String,
-    camera: Camera,
-}
 
 pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
     if a.spp == 0 || a.spp > crate::shade::sobol::MAX_SAMPLES {
@@ -53,7 +44,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
         return render_baked(cli, a, &scene, &state);
     }
     let (environment, rotation, env_source) = select_environment(&scene, &state, a)?;
-    let views = select_views(a, &state.name)?;
+    let views = read_views(&a.cameras, a.frames.as_deref(), &state.name)?;
 
     let started = Instant::now();
     let trace = TraceScene::new(&scene);
@@ -85,7 +76,10 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
     for (k, view) in views.iter().enumerate() {
         bar.set_message(view.name.clone());
         let seed = a.seed.wrapping_add(k as u32);
-        let (image, view_rays) = render_view(&estimator, &filter, &view.camera, a.spp, seed, &bar);
+        let (image, view_rays) =
+            render_image(&estimator, &filter, &view.camera, a.spp, seed, &|n| {
+                bar.inc(n)
+            });
         rays += view_rays;
         files.extend(write_view(&image, &a.out, &view.name)?);
     }
@@ -196,134 +190,9 @@ fn select_environment<'s>(
     ))
 }
 
-/// `{"frames": [...]}` of a cameras file.
-#[derive(serde::Deserialize)]
-struct CameraFile {
-    frames: Vec<Frame>,
-}
-
-/// The cameras: a dataset's frames (`--frames STATE` or `all`; default: `--state` if the dataset
-/// has it, else its first state), or every frame of a cameras.json.
-fn select_views(a: &RenderArgs, state_name: &str) -> Result<Vec<View>> {
-    let path = &a.cameras;
-    let is_dataset = path.is_dir() || {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        let v: serde_json::Value = serde_json::from_slice(&bytes)
-            .map_err(|e| Error::invalid(path, "JSON", format!("expected valid JSON: {e}")))?;
-        v.get("format").and_then(|f| f.as_str()) == Some(DATASET_FORMAT)
-    };
-    // (frame, state name or "", index) of each selected frame.
-    let mut frames: Vec<(Frame, String, PathBuf)> = Vec::new();
-    if is_dataset {
-        let d = Dataset::read(path)?;
-        let state_frames = |k: usize| -> Vec<Frame> {
-            let s = &d.states[k];
-            if s.frames.is_empty() {
-                s.relight.iter().flat_map(|r| r.frames.clone()).collect()
-            } else {
-                s.frames.clone()
-            }
-        };
-        let chosen: Vec<usize> = match a.frames.as_deref() {
-            Some("all") => (0..d.states.len()).collect(),
-            Some(name) => vec![d
-                .states
-                .iter()
-                .position(|s| s.name == name)
-                .ok_or_else(|| {
-                    let names: Vec<_> = d.states.iter().map(|s| s.name.as_str()).collect();
-                    Error::invalid(
-                        &d.file,
-                        "states",
-                        format!("--frames {name:?}: expected \"all\" or one of {names:?}"),
-                    )
-                })?],
-            None => vec![d
-                .states
-                .iter()
-                .position(|s| s.name == state_name)
-                .unwrap_or(0)],
-        };
-        for k in chosen {
-            for f in state_frames(k) {
-                frames.push((f, d.states[k].name.clone(), d.file.clone()));
-            }
-        }
-        // Relight frames are not validated by Dataset::read.
-        for (i, (f, s, file)) in frames.iter().enumerate() {
-            f.camera
-                .validate(file, &format!("states.{s}.frames[{i}]"))?;
-        }
-    } else {
-        if a.frames.is_some() {
-            return Err(Error::Usage(
-                "--frames selects a dataset state's frames; --cameras is not a dataset".into(),
-            ));
-        }
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        let c: CameraFile = serde_json::from_slice(&bytes).map_err(|e| {
-            Error::invalid(
-                path,
-                "frames",
-                format!("expected {{\"frames\": [...]}} with dataset frame fields: {e}"),
-            )
-        })?;
-        for (i, f) in c.frames.iter().enumerate() {
-            f.camera.validate(path, &format!("frames[{i}]"))?;
-        }
-        frames = c
-            .frames
-            .into_iter()
-            .map(|f| (f, String::new(), path.clone()))
-            .collect();
-    }
-    if frames.is_empty() {
-        return Err(Error::invalid(
-            path,
-            "frames",
-            "expected at least one camera frame",
-        ));
-    }
-    let stem = |f: &Frame| {
-        Path::new(&f.file_path)
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
-    let stems: Vec<String> = frames.iter().map(|(f, _, _)| stem(f)).collect();
-    let unique = {
-        let mut s = stems.clone();
-        s.sort();
-        s.dedup();
-        s.len() == stems.len() && stems.iter().all(|s| !s.is_empty())
-    };
-    Ok(frames
-        .into_iter()
-        .zip(stems)
-        .enumerate()
-        .map(|(i, ((f, _, _), stem))| {
-            let name = if unique {
-                stem
-            } else {
-                let p = Path::new(&f.file_path).with_extension("");
-                let flat = p.to_string_lossy().replace(['/', '\\'], "_");
-                if flat.is_empty() {
-                    format!("{i:03}")
-                } else {
-                    flat
-                }
-            };
-            View {
-                name,
-                camera: f.camera,
-            }
-        })
-        .collect())
-}
-
 /// `render --baked`: the SH appearance splatted by 2DGS (eq. state-assembly for the placement).
 fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Result<()> {
-    let views = select_views(a, &state.name)?;
+    let views = read_views(&a.cameras, a.frames.as_deref(), &state.name)?;
     let started = Instant::now();
     let placements: Vec<crate::splat::Placement> = scene
         .components
@@ -379,80 +248,6 @@ fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Resu
         );
     }
     Ok(())
-}
-
-/// Renders one camera: rayon over 16x16 tiles, each rendered into its own buffer.
-fn render_view(
-    estimator: &Estimator,
-    filter: &PixelFilter,
-    camera: &Camera,
-    spp: u32,
-    seed: u32,
-    bar: &indicatif::ProgressBar,
-) -> (Channels, u64) {
-    let (w, h) = (camera.w, camera.h);
-    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
-        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
-        .collect();
-    let rendered: Vec<((u32, u32), [Pixel; (TILE * TILE) as usize])> = tiles
-        .par_iter()
-        .map(|&(x0, y0)| {
-            let mut buf = [Pixel::default(); (TILE * TILE) as usize];
-            let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    buf[((y - y0) * TILE + (x - x0)) as usize] =
-                        estimator.pixel(camera, filter, (x, y), spp, seed);
-                }
-            }
-            bar.inc(((x1 - x0) * (y1 - y0)) as u64);
-            ((x0, y0), buf)
-        })
-        .collect();
-    let n = (w * h) as usize;
-    const NAMES: [&str; 11] = [
-        "R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z", "albedo.R", "albedo.G", "albedo.B",
-    ];
-    let mut planes = vec![vec![0.0f32; n]; NAMES.len()];
-    let mut rays = 0u64;
-    for ((x0, y0), buf) in &rendered {
-        for y in *y0..(y0 + TILE).min(h) {
-            for x in *x0..(x0 + TILE).min(w) {
-                let p = &buf[((y - y0) * TILE + (x - x0)) as usize];
-                let i = (y * w + x) as usize;
-                let values = [
-                    p.rgb[0],
-                    p.rgb[1],
-                    p.rgb[2],
-                    p.alpha,
-                    p.depth,
-                    p.normal[0],
-                    p.normal[1],
-                    p.normal[2],
-                    p.albedo[0],
-                    p.albedo[1],
-                    p.albedo[2],
-                ];
-                for (plane, v) in planes.iter_mut().zip(values) {
-                    plane[i] = v;
-                }
-                rays += p.rays as u64;
-            }
-        }
-    }
-    let channels = NAMES
-        .iter()
-        .zip(planes)
-        .map(|(name, v)| (name.to_string(), v))
-        .collect();
-    (
-        Channels {
-            width: w as usize,
-            height: h as usize,
-            channels,
-        },
-        rays,
-    )
 }
 
 /// The sRGB OETF (IEC 61966-2-1) of a linear value clamped to [0, 1], as an 8-bit code.

@@ -3,5 +3,6 @@
 pub mod geometry;
 pub mod metrics;
 pub mod pose;
+pub mod report;
 
 pub use metrics::{depth_error, psnr, psnr_srgb, srgb_encode, ssim, ssim_srgb, DepthError};

@@ -34,16 +34,23 @@ pub struct Symmetry {
     pub offset: [f32; 3],
 }
 
-/// Rotation and translation error of one estimate.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Rotation and translation error of one estimate. Serialised with the names `report.json`
+/// uses (docs/formats.md): `rotation_deg`, `rotation_deg_ignoring_symmetry`, `translation_cm`.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct PoseError {
     /// Least rotation angle over the symmetry group, degrees.
     pub rotation_deg: f64,
     /// Rotation angle of `T⁻¹ T̂` ignoring symmetries, degrees.
+    #[serde(rename = "rotation_deg_ignoring_symmetry")]
     pub rotation_deg_raw: f64,
     /// `|T̂ c − T c|` at the point `c` every symmetry fixes (the object's origin when it has
     /// none), reference world, metres.
+    #[serde(rename = "translation_cm", serialize_with = "metres_as_cm")]
     pub translation_m: f64,
+}
+
+fn metres_as_cm<S: serde::Serializer>(m: &f64, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_f64(100.0 * m)
 }
 
 fn rot(r: &Rigid) -> DMat3 {
@@ -180,9 +187,7 @@ mod tests {
         // is frame · R_y(θ) · frame⁻¹).
         let spin = |deg: f32| {
             let r = rigid(Vec3::Y, deg, [0.0; 3]);
-            frame
-                .compose(&r)
-                .compose(&crate::stages::reconstruct::init::inverse(&frame))
+            frame.compose(&r).compose(&frame.inverse())
         };
         let continuous = [Symmetry {
             axis: [0.0, 1.0, 0.0],

@@ -1,5 +1,6 @@
 //! Every byte that enters or leaves LightFuse: glTF, USD, EXR, PLY, layouts.
 
+pub mod cameras;
 pub mod dataset;
 pub mod exr;
 pub mod gltf;

@@ -53,11 +53,7 @@ fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 /// Camera-space direction whose z is −1, so that depth · dir is the back-projected point.
 #[inline]
 fn pixel_dir(cam: &Camera, x: usize, y: usize) -> [f32; 3] {
-    [
-        (x as f32 + 0.5 - cam.cx) / cam.fl_x,
-        -(y as f32 + 0.5 - cam.cy) / cam.fl_y,
-        -1.0,
-    ]
+    cam.camera_direction(x as f32 + 0.5, y as f32 + 0.5)
 }
 
 /// Everything the forward pass knows about one pixel's depth normal.

@@ -72,16 +72,112 @@ impl Camera {
         Ok(())
     }
 
+    /// The camera's position in world space.
+    pub fn origin(&self) -> [f32; 3] {
+        let m = &self.transform_matrix;
+        [m[0][3], m[1][3], m[2][3]]
+    }
+
+    /// Camera-space direction through pixel coordinates (u, v) with z = −1, so that a planar
+    /// depth times it is the camera-space point.
+    pub fn camera_direction(&self, u: f32, v: f32) -> [f32; 3] {
+        [(u - self.cx) / self.fl_x, -(v - self.cy) / self.fl_y, -1.0]
+    }
+
+    /// Camera-space point of pixel coordinates (u, v) at planar depth z.
+    pub fn pixel_to_camera(&self, u: f32, v: f32, z: f32) -> [f32; 3] {
+        [
+            (u - self.cx) * z / self.fl_x,
+            -(v - self.cy) * z / self.fl_y,
+            -z,
+        ]
+    }
+
+    /// Rotates a camera-space vector into world space.
+    pub fn rotate_to_world(&self, v: [f32; 3]) -> [f32; 3] {
+        let m = &self.transform_matrix;
+        std::array::from_fn(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
+    }
+
+    /// World point of a camera-space point.
+    pub fn camera_to_world(&self, p: [f32; 3]) -> [f32; 3] {
+        let m = &self.transform_matrix;
+        std::array::from_fn(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+    }
+
+    /// Camera-space point of a world point: Rᵀ (p − t), R's columns being the camera axes.
+    pub fn world_to_camera(&self, p: [f32; 3]) -> [f32; 3] {
+        let m = &self.transform_matrix;
+        let d = [p[0] - m[0][3], p[1] - m[1][3], p[2] - m[2][3]];
+        std::array::from_fn(|c| m[0][c] * d[0] + m[1][c] * d[1] + m[2][c] * d[2])
+    }
+
+    /// World point of pixel coordinates (u, v) at planar depth z (camera-space −Z = z); the
+    /// centre of pixel (x, y) is (x + 0.5, y + 0.5).
+    pub fn pixel_to_world(&self, u: f32, v: f32, z: f32) -> [f32; 3] {
+        self.camera_to_world(self.pixel_to_camera(u, v, z))
+    }
+
+    /// Pixel coordinates of a camera-space point with planar depth `z = −p.z > 0`.
+    pub fn camera_to_pixel(&self, p: [f32; 3], z: f32) -> [f32; 2] {
+        [
+            self.cx + self.fl_x * p[0] / z,
+            self.cy - self.fl_y * p[1] / z,
+        ]
+    }
+
+    /// Pixel coordinates (the centre of pixel (x, y) at (x + 0.5, y + 0.5)) and planar depth
+    /// of a world point, or None when it is behind (or within 1e-6 of) the camera plane or not
+    /// a number. Points outside the image are returned; callers check the bounds they need.
+    pub fn project(&self, p_world: [f32; 3]) -> Option<([f32; 2], f32)> {
+        let pc = self.world_to_camera(p_world);
+        let z = -pc[2];
+        if z.is_nan() || z <= 1e-6 {
+            return None;
+        }
+        Some((self.camera_to_pixel(pc, z), z))
+    }
+
+    /// World-space origin and the direction through pixel coordinates (u, v) scaled so that
+    /// its component along the viewing axis is 1: the ray parameter t is the planar depth.
+    pub fn planar_ray(&self, u: f32, v: f32) -> ([f32; 3], [f32; 3]) {
+        (
+            self.origin(),
+            self.rotate_to_world(self.camera_direction(u, v)),
+        )
+    }
+
     /// World-space origin and unit direction of the ray through pixel coordinates (u, v),
     /// where (x + 0.5, y + 0.5) is the centre of pixel (x, y).
     pub fn ray(&self, u: f32, v: f32) -> ([f32; 3], [f32; 3]) {
-        let m = &self.transform_matrix;
-        let d_cam = [(u - self.cx) / self.fl_x, -(v - self.cy) / self.fl_y, -1.0];
-        let mut d = [0.0f32; 3];
-        for (r, di) in d.iter_mut().enumerate() {
-            *di = m[r][0] * d_cam[0] + m[r][1] * d_cam[1] + m[r][2] * d_cam[2];
-        }
+        let (o, d) = self.planar_ray(u, v);
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        ([m[0][3], m[1][3], m[2][3]], [d[0] / n, d[1] / n, d[2] / n])
+        (o, [d[0] / n, d[1] / n, d[2] / n])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn project_inverts_pixel_to_world_and_planar_rays_measure_depth() {
+        let cam = Camera::look_at([1.0, 2.0, 3.0], [0.2, -0.1, 0.4], 64, 48, 50.0);
+        let (u, v, z) = (10.5, 30.5, 2.5);
+        let p = cam.pixel_to_world(u, v, z);
+        let ([pu, pv], pz) = cam.project(p).expect("in front of the camera");
+        assert!((pu - u).abs() < 1e-3 && (pv - v).abs() < 1e-3, "{pu} {pv}");
+        assert!((pz - z).abs() < 1e-4, "{pz}");
+        let (o, d) = cam.planar_ray(u, v);
+        let q: [f32; 3] = std::array::from_fn(|k| o[k] + z * d[k]);
+        for k in 0..3 {
+            assert!((q[k] - p[k]).abs() < 1e-4, "{q:?} {p:?}");
+        }
+        let (_, unit) = cam.ray(u, v);
+        let n = (unit.iter().map(|c| c * c).sum::<f32>()).sqrt();
+        assert!((n - 1.0).abs() < 1e-6);
+        // Behind the camera.
+        let behind = cam.pixel_to_world(u, v, -1.0);
+        assert!(cam.project(behind).is_none());
     }
 }

@@ -4,6 +4,7 @@
 pub mod camera;
 pub mod environment;
 pub mod layout;
+pub mod mesh;
 pub mod surfelize;
 pub mod surfels;
 pub mod synthetic;

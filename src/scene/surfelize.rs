@@ -35,7 +35,7 @@
 //! SH appearance is set so that it shows the base colour: DC = (a − 0.5) / C₀, higher degrees 0.
 
 use crate::error::{Error, Result};
-use crate::io::mesh::{MeshMaterial, MeshScene, MeshTriangle};
+use crate::scene::mesh::{MeshMaterial, MeshScene, MeshTriangle};
 use crate::scene::Rigid;
 use crate::scene::{sh_coeffs, Component, Scene, State, Surfels, BACKGROUND, MAX_SH_DEGREE, SH_C0};
 use glam::{DMat3, DVec3, Mat3, Quat};

@@ -99,6 +99,15 @@ impl Rigid {
         }
     }
 
+    /// The inverse transform, x ↦ Rᵀ (x − t).
+    pub fn inverse(&self) -> Rigid {
+        let qi = self.quat().normalize().inverse();
+        Rigid {
+            rotation: qi.to_array(),
+            translation: (-(qi * Vec3::from_array(self.translation))).to_array(),
+        }
+    }
+
     pub fn transform_point(&self, p: [f32; 3]) -> [f32; 3] {
         (self.quat() * Vec3::from_array(p) + Vec3::from_array(self.translation)).to_array()
     }
@@ -157,5 +166,24 @@ mod tests {
         let m = a.matrix() * b.matrix();
         let c = a.compose(&b).matrix();
         assert!(m.abs_diff_eq(c, 1e-5));
+    }
+
+    #[test]
+    fn inverse_undoes_the_transform() {
+        let t = Rigid {
+            rotation: Quat::from_axis_angle(Vec3::new(1.0, 2.0, -0.5).normalize(), 0.9).to_array(),
+            translation: [0.3, -1.2, 2.5],
+        };
+        let p = [0.7, 0.1, -0.4];
+        let back = t.inverse().transform_point(t.transform_point(p));
+        for k in 0..3 {
+            assert!((back[k] - p[k]).abs() < 1e-5, "{back:?} {p:?}");
+        }
+        let id = t.compose(&t.inverse());
+        assert!(id
+            .transform_point(p)
+            .iter()
+            .zip(&p)
+            .all(|(a, b)| (a - b).abs() < 1e-5));
     }
 }

@@ -1,4 +1,5 @@
 //! The paper's stages, each a plain function of files (DESIGN §4).
 
+pub mod common;
 pub mod reconstruct;
 pub mod refine;

@@ -255,21 +255,6 @@ struct Problem<'a> {
     opts: AlignOptions,
 }
 
-/// World → pixel coordinates (u, v) and planar depth for a camera.
-fn project(cam: &Camera, p: Vec3) -> Option<(f32, f32, f32)> {
-    let m = &cam.transform_matrix;
-    let col = |c: usize| Vec3::new(m[0][c], m[1][c], m[2][c]);
-    let o = Vec3::new(m[0][3], m[1][3], m[2][3]);
-    let d = p - o;
-    let z = -d.dot(col(2));
-    if z <= 1e-6 {
-        return None;
-    }
-    let x = d.dot(col(0));
-    let y = d.dot(col(1));
-    Some((cam.cx + cam.fl_x * x / z, cam.cy - cam.fl_y * y / z, z))
-}
-
 impl<'a> Problem<'a> {
     fn new(
         surfels: &'a Surfels,
@@ -340,8 +325,9 @@ impl<'a> Problem<'a> {
                     }
                 }
             }
-            match project(cam, target) {
-                Some((u, v, z)) if z > 2.0 * radius => {
+            // A target that is not a number has no projection either way: the whole image.
+            match cam.project(target.to_array()) {
+                Some(([u, v], z)) if z > 2.0 * radius => {
                     let r = (cam.fl_x.max(cam.fl_y) * 2.0 * radius / (z - 2.0 * radius)).ceil();
                     x0 = x0.min((u - r).floor() as i64);
                     y0 = y0.min((v - r).floor() as i64);

@@ -86,7 +86,6 @@ pub fn seed_points(obs: &Observation, select: &[bool]) -> Result<SeedPoints> {
             ));
         }
     }
-    let m = &cam.transform_matrix;
     let mut out = SeedPoints::default();
     for (p, _) in select.iter().enumerate().filter(|(_, &s)| s) {
         let d = obs.depth[p];
@@ -94,14 +93,7 @@ pub fn seed_points(obs: &Observation, select: &[bool]) -> Result<SeedPoints> {
             continue;
         }
         let (x, y) = ((p % w) as f32 + 0.5, (p / w) as f32 + 0.5);
-        // Planar depth: the camera-space point is d · ((u − cx)/f_x, −(v − cy)/f_y, −1).
-        let pc = [
-            d * (x - cam.cx) / cam.fl_x,
-            -d * (y - cam.cy) / cam.fl_y,
-            -d,
-        ];
-        let pw: [f32; 3] =
-            std::array::from_fn(|r| m[r][0] * pc[0] + m[r][1] * pc[1] + m[r][2] * pc[2] + m[r][3]);
+        let pw = cam.pixel_to_world(x, y, d);
         let n = obs.normal[p];
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
         let normal = if len > 0.5 {

@@ -122,15 +122,6 @@ impl PointCloud {
     }
 }
 
-/// The inverse rigid transform, x ↦ Rᵀ (x − t).
-pub fn inverse(t: &Rigid) -> Rigid {
-    let qi = t.quat().normalize().inverse();
-    Rigid {
-        rotation: qi.to_array(),
-        translation: (-(qi * Vec3::from_array(t.translation))).to_array(),
-    }
-}
-
 /// Options of [`backproject`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BackprojectOptions {
@@ -154,30 +145,20 @@ impl Default for BackprojectOptions {
     }
 }
 
-/// Camera-space point of pixel centre (u, v) at planar depth z (looks down −Z, +Y up).
-fn camera_point(cam: &Camera, u: f32, v: f32, z: f32) -> Vec3 {
-    Vec3::new(
-        (u - cam.cx) * z / cam.fl_x,
-        -(v - cam.cy) * z / cam.fl_y,
-        -z,
-    )
-}
-
-fn camera_rotation(cam: &Camera) -> (Mat3, Vec3) {
+/// Camera-to-world rotation, for normals and viewing directions.
+fn camera_rotation(cam: &Camera) -> Mat3 {
     let m = &cam.transform_matrix;
-    let r = Mat3::from_cols(
+    Mat3::from_cols(
         Vec3::new(m[0][0], m[1][0], m[2][0]),
         Vec3::new(m[0][1], m[1][1], m[2][1]),
         Vec3::new(m[0][2], m[1][2], m[2][2]),
-    );
-    (r, Vec3::new(m[0][3], m[1][3], m[2][3]))
+    )
 }
 
 /// World point of pixel (x, y) at planar depth z: the pixel centre (x + 0.5, y + 0.5) pushed
 /// along its ray to camera-space −Z = z.
 pub fn pixel_to_world(cam: &Camera, x: usize, y: usize, z: f32) -> [f32; 3] {
-    let (r, o) = camera_rotation(cam);
-    (r * camera_point(cam, x as f32 + 0.5, y as f32 + 0.5, z) + o).to_array()
+    cam.pixel_to_world(x as f32 + 0.5, y as f32 + 0.5, z)
 }
 
 /// Every view of one state back-projected into one cloud ([`backproject`]).
@@ -193,7 +174,7 @@ pub fn state_cloud(views: &[Observation], opts: &BackprojectOptions) -> PointClo
 pub fn backproject(obs: &Observation, opts: &BackprojectOptions) -> PointCloud {
     let cam = &obs.camera;
     let (w, h) = (cam.w as usize, cam.h as usize);
-    let (r, o) = camera_rotation(cam);
+    let r = camera_rotation(cam);
     let f = (cam.fl_x * cam.fl_y).sqrt();
     let depth = |x: usize, y: usize| obs.depth[y * w + x];
     // Same surface: a valid depth, the same mask id, no depth jump.
@@ -203,8 +184,9 @@ pub fn backproject(obs: &Observation, opts: &BackprojectOptions) -> PointCloud {
             && obs.mask[y2 * w + x2] == obs.mask[y * w + x]
             && (z2 - z).abs() <= opts.depth_jump * z
     };
-    let cam_pt =
-        |x: usize, y: usize| camera_point(cam, x as f32 + 0.5, y as f32 + 0.5, depth(x, y));
+    let cam_pt = |x: usize, y: usize| {
+        Vec3::from_array(cam.pixel_to_camera(x as f32 + 0.5, y as f32 + 0.5, depth(x, y)))
+    };
     let rows: Vec<PointCloud> = (0..h)
         .into_par_iter()
         .map(|y| {
@@ -254,7 +236,7 @@ pub fn backproject(obs: &Observation, opts: &BackprojectOptions) -> PointCloud {
                 }
                 let cos = n.dot(view_w).abs().max(MIN_OBLIQUITY);
                 out.push(
-                    (r * pc + o).to_array(),
+                    cam.camera_to_world(pc.to_array()),
                     n.to_array(),
                     obs.rgb[i],
                     obs.mask[i],
@@ -467,7 +449,7 @@ pub fn initial_components(
         background.extend(&cloud.with_mask(0));
         for (o, obj) in objects.iter().enumerate() {
             let pts = cloud.with_mask(obj.id);
-            per_object[o].extend(&pts.transformed(&inverse(&pose[o])));
+            per_object[o].extend(&pts.transformed(&pose[o].inverse()));
         }
     }
     let mut out = vec![Component {

@@ -14,13 +14,17 @@
 use super::train::{render_state, Losses, Model, RawComponent, Settings, Trainer};
 use super::{align, completion, init, register, segment};
 use crate::error::{Error, Result};
+use crate::eval::pose::pose_error;
+use crate::eval::report::{
+    covered_psnr_srgb, depth_errors, median, save_comparison, ObjectPoseError,
+};
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Component, Rigid, Scene, State};
+use crate::stages::common::{read_checkpoint, say, write_checkpoint, Progress, StageLog};
 use glam::Vec3;
 use serde::Serialize;
 use serde_json::json;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -38,20 +42,6 @@ pub struct Options {
     pub voxel: f32,
     /// Depth-discrepancy threshold τ_D of eq. completion-mask, metres.
     pub tau_d: f32,
-}
-
-/// An estimated object pose against the ground truth ([`crate::eval::pose`]).
-#[derive(Clone, Debug, Serialize)]
-pub struct PoseError {
-    pub state: String,
-    pub object: String,
-    /// Least rotation error over the object's declared symmetries, degrees.
-    pub rotation_deg: f64,
-    /// The plain rotation angle of T⁻¹T̂, degrees (differs for symmetric objects).
-    pub rotation_deg_ignoring_symmetry: f64,
-    /// At the object's origin (`reference_pose`; its surfels' centroid when the dataset has none),
-    /// or where its symmetry axes meet when they name a point (`offset`).
-    pub translation_cm: f64,
 }
 
 /// One held-out view's figures.
@@ -81,43 +71,11 @@ pub struct Report {
     /// the scene's extent (diagonal of the training points' bounds).
     pub heldout_median_depth_error_m: f64,
     pub heldout_median_depth_error_rel: f64,
-    pub pose_errors: Vec<PoseError>,
+    pub pose_errors: Vec<ObjectPoseError>,
     /// Per object: share of its true surface points (masked reference depth) whose nearest
     /// surfel carries its label.
     pub label_share: Vec<(String, f64)>,
     pub oracle_poses: bool,
-}
-
-fn progress(quiet: bool, len: u64, msg: &str) -> indicatif::ProgressBar {
-    if quiet {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(len);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{msg:12} [{bar:30}] {pos}/{len} {elapsed} eta {eta} {prefix}",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    bar.set_message(msg.to_string());
-    bar
-}
-
-fn say(quiet: bool, s: &str) {
-    if !quiet {
-        eprintln!("{s}");
-    }
-}
-
-/// A message above the progress bar, or a plain line when the bar is not drawn (stderr is a
-/// file or a pipe: a log of a long run should still say what happened).
-fn say_above(bar: &indicatif::ProgressBar, quiet: bool, s: &str) {
-    if bar.is_hidden() {
-        say(quiet, s);
-    } else {
-        bar.println(s);
-    }
 }
 
 /// Splits the observations of each training state into (training, held-out): views with index
@@ -135,14 +93,6 @@ pub fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Obse
 
 fn checkpoint_path(out: &Path) -> PathBuf {
     out.join("checkpoint.json")
-}
-
-fn write_checkpoint(out: &Path, trainer: &Trainer) -> Result<()> {
-    let bytes =
-        serde_json::to_vec(trainer).map_err(|e| Error::Usage(format!("checkpoint: {e}")))?;
-    let mut files = AtomicFiles::new();
-    files.write(&checkpoint_path(out), &bytes)?;
-    files.commit()
 }
 
 /// The scene the model stands for: components and one state per training state.
@@ -244,14 +194,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     let mut trainer =
         if opts.resume && checkpoint_path(&opts.out).is_file() {
             let path = checkpoint_path(&opts.out);
-            let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-            let t: Trainer = serde_json::from_slice(&bytes).map_err(|e| {
-                Error::invalid(
-                    &path,
-                    "checkpoint",
-                    format!("expected a LightFuse checkpoint: {e}"),
-                )
-            })?;
+            let t: Trainer = read_checkpoint(&path)?;
             t.adam.validate(&path)?;
             let states = train.len();
             if t.model.poses.len() != states
@@ -289,7 +232,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                             .map(|o| {
                                 let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
                                 let pose = dataset.object_pose(k, &o.name)?;
-                                Ok(pose.compose(&init::inverse(&ref_pose)))
+                                Ok(pose.compose(&ref_pose.inverse()))
                             })
                             .collect::<Result<Vec<_>>>()
                     })
@@ -370,33 +313,24 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     // Training (item 6) with completion (item 5).
     let views: Vec<Vec<&Observation>> = train.iter().map(|v| v.iter().collect()).collect();
     let total = trainer.settings.iterations;
-    let bar = progress(opts.quiet, total as u64, "training");
-    bar.set_position(trainer.iteration as u64);
-    let log_path = opts.out.join("log.jsonl");
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&log_path)
-        .map_err(|e| Error::io(&log_path, e))?;
-    let completion_at = total / 3;
-    let t_train = Instant::now();
-    let start_iteration = trainer.iteration;
     // Without a terminal the bar is not drawn: a plain line about every tenth of the run, on the
     // log's 50-iteration grid.
     let plain_every = (total / 10 / 50).max(1) * 50;
+    let mut bar =
+        Progress::new(opts.quiet, total as u64, "training").plain_every(plain_every as u64);
+    // A fresh run in a used directory appends too (as a resumed one does).
+    let mut log = StageLog::append(&opts.out.join("log.jsonl"))?;
+    let completion_at = total / 3;
+    bar.start_at(trainer.iteration as u64);
     let mut window = Losses::default();
     let mut window_n = 0u32;
     while trainer.iteration < total {
         if trainer.iteration == completion_at && completion_at > 0 {
             let added = complete(&mut trainer, &train, opts)?;
-            say_above(
-                &bar,
-                opts.quiet,
-                &format!(
-                    "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
-                    opts.tau_d
-                ),
-            );
+            bar.println(&format!(
+                "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
+                opts.tau_d
+            ));
         }
         let l = trainer.step(&views);
         window.total += l.total;
@@ -416,35 +350,20 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                 "scale": window.scale / k, "depth": window.depth / k, "normal": window.normal / k,
                 "depth_normal": window.depth_normal / k,
             });
-            writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
-            let status = format!(
+            log.write(&line)?;
+            bar.status(&format!(
                 "loss {:.4} · {} surfels",
                 window.total / k,
                 trainer.model.surfel_count()
-            );
-            if bar.is_hidden() && trainer.iteration % plain_every == 0 {
-                let done = trainer.iteration as f64 / total.max(1) as f64;
-                let spent = t_train.elapsed().as_secs_f64();
-                let ran = (trainer.iteration - start_iteration).max(1) as f64;
-                let left = spent / ran * (total - trainer.iteration) as f64;
-                say(
-                    opts.quiet,
-                    &format!(
-                        "training {}/{total} ({:.0} %) {status} · {spent:.0} s, ~{left:.0} s left",
-                        trainer.iteration,
-                        100.0 * done
-                    ),
-                );
-            }
-            bar.set_prefix(status);
+            ));
             window = Losses::default();
             window_n = 0;
         }
         if trainer.iteration % 500 == 0 || trainer.iteration == total {
-            write_checkpoint(&opts.out, &trainer)?;
+            write_checkpoint(&checkpoint_path(&opts.out), &trainer)?;
         }
     }
-    bar.finish_and_clear();
+    bar.finish();
 
     let scene = scene_of(&trainer.model, &dataset, &train_states);
     crate::io::write_scene(&scene, &opts.out.join("scene.glb"))?;
@@ -488,7 +407,7 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
                 let mut p = seeds.position[i];
                 let mut n = seeds.normal[i];
                 if c > 0 {
-                    let inv = init::inverse(&trainer.model.poses[j][c - 1]);
+                    let inv = trainer.model.poses[j][c - 1].inverse();
                     p = inv.transform_point(p);
                     n = (inv.quat() * Vec3::from_array(n)).to_array();
                 }
@@ -515,49 +434,6 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
     Ok(added)
 }
 
-fn srgb(x: f32) -> f64 {
-    crate::eval::srgb_encode(x) as f64
-}
-
-/// Writes capture | render | 4 × |difference| side by side, sRGB, over the pixels where the
-/// capture saw a surface (black elsewhere).
-fn save_comparison(color: &[[f32; 3]], o: &Observation, path: &Path) -> Result<()> {
-    let (w, h) = (o.camera.w, o.camera.h);
-    let mut strip = image::RgbImage::new(3 * w, h);
-    for (i, c) in color.iter().enumerate() {
-        if o.depth[i] > 0.0 {
-            let (x, y) = (i as u32 % w, i as u32 / w);
-            let (r, g) = (c.map(srgb), o.rgb[i].map(srgb));
-            let byte = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-            strip.put_pixel(x, y, image::Rgb(g.map(byte)));
-            strip.put_pixel(x + w, y, image::Rgb(r.map(byte)));
-            let d = [0, 1, 2].map(|k| byte(4.0 * (r[k] - g[k]).abs()));
-            strip.put_pixel(x + 2 * w, y, image::Rgb(d));
-        }
-    }
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    strip
-        .save(path)
-        .map_err(|e| Error::io(path, std::io::Error::other(e.to_string())))
-}
-
-/// PSNR in sRGB over the pixels where the capture saw a surface.
-fn covered_psnr_srgb(color: &[[f32; 3]], o: &Observation) -> f64 {
-    let (mut se, mut n) = (0.0f64, 0usize);
-    for (i, c) in color.iter().enumerate() {
-        if o.depth[i] > 0.0 {
-            for (&a, &b) in c.iter().zip(&o.rgb[i]) {
-                let d = srgb(a) - srgb(b);
-                se += d * d;
-            }
-            n += 3;
-        }
-    }
-    -10.0 * (se / n.max(1) as f64).max(1e-20).log10()
-}
-
 fn evaluate(
     model: &Model,
     dataset: &Dataset,
@@ -575,30 +451,27 @@ fn evaluate(
         let state = &dataset.states[train_states[j]].name;
         for o in views {
             let img = render_state(model, j, &o.camera);
-            let mut view_depth: Vec<f64> = (0..o.depth.len())
-                .filter(|&i| o.depth[i] > 0.0)
-                .map(|i| {
-                    if img.alpha[i] > 0.0 {
-                        (img.depth[i] - o.depth[i]).abs() as f64
-                    } else {
-                        o.depth[i] as f64
-                    }
-                })
-                .collect();
+            let mut view_depth = depth_errors(&img.depth, &img.alpha, &o.depth);
             if view_depth.is_empty() {
                 continue;
             }
-            let psnr = covered_psnr_srgb(&img.color, o);
+            let psnr = covered_psnr_srgb(&img.color, &o.rgb, &o.depth);
             psnrs.push(psnr);
             let name = format!("heldout/{state}_{:03}.png", o.view);
-            save_comparison(&img.color, o, &opts.out.join(&name))?;
+            save_comparison(
+                &img.color,
+                &o.rgb,
+                &o.depth,
+                o.camera.w,
+                o.camera.h,
+                &opts.out.join(&name),
+            )?;
             depth_err.extend(&view_depth);
-            view_depth.sort_by(|a, b| a.total_cmp(b));
             heldout.push(HeldOutView {
                 state: state.clone(),
                 view: o.view,
                 psnr_srgb: psnr,
-                median_depth_error_m: view_depth[view_depth.len() / 2],
+                median_depth_error_m: median(&mut view_depth),
                 image: name,
             });
         }
@@ -609,16 +482,12 @@ fn evaluate(
         let state = &dataset.states[train_states[j]].name;
         for o in views {
             let img = render_state(model, j, &o.camera);
-            train_psnrs.push(covered_psnr_srgb(&img.color, o));
+            train_psnrs.push(covered_psnr_srgb(&img.color, &o.rgb, &o.depth));
             let path = opts.out.join(format!("train/{state}_{:03}.png", o.view));
-            save_comparison(&img.color, o, &path)?;
+            save_comparison(&img.color, &o.rgb, &o.depth, o.camera.w, o.camera.h, &path)?;
         }
     }
-    depth_err.sort_by(|a, b| a.total_cmp(b));
-    let median = depth_err
-        .get(depth_err.len() / 2)
-        .copied()
-        .unwrap_or(f64::NAN);
+    let median = median(&mut depth_err);
     // Scene extent from the training captures' points.
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for views in train {
@@ -642,7 +511,7 @@ fn evaluate(
         for (o, obj) in dataset.objects.iter().enumerate() {
             let gt = dataset
                 .object_pose(k, &obj.name)?
-                .compose(&init::inverse(&dataset.object_pose(ref_k, &obj.name)?));
+                .compose(&dataset.object_pose(ref_k, &obj.name)?.inverse());
             let frame = match obj.reference_pose {
                 Some(_) => dataset.object_frame(o)?,
                 None => {
@@ -655,13 +524,10 @@ fn evaluate(
                     }
                 }
             };
-            let e = crate::eval::pose::pose_error(&gt, &model.poses[j][o], &frame, &obj.symmetries);
-            pose_errors.push(PoseError {
+            pose_errors.push(ObjectPoseError {
                 state: dataset.states[k].name.clone(),
                 object: obj.name.clone(),
-                rotation_deg: e.rotation_deg,
-                rotation_deg_ignoring_symmetry: e.rotation_deg_raw,
-                translation_cm: 100.0 * e.translation_m,
+                error: pose_error(&gt, &model.poses[j][o], &frame, &obj.symmetries),
             });
         }
     }

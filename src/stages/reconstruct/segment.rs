@@ -179,16 +179,7 @@ pub fn segment(
 /// Projects world point `p` into `camera`: the pixel index (row-major) and the planar depth,
 /// or None when it lies behind the camera or outside the image.
 pub fn project(camera: &Camera, p: [f32; 3]) -> Option<(usize, f32)> {
-    let m = &camera.transform_matrix;
-    let d = [p[0] - m[0][3], p[1] - m[1][3], p[2] - m[2][3]];
-    // p_cam = Rᵀ (p − t); R's columns are the camera axes in world space.
-    let pc: [f32; 3] = std::array::from_fn(|c| m[0][c] * d[0] + m[1][c] * d[1] + m[2][c] * d[2]);
-    let depth = -pc[2];
-    if depth.is_nan() || depth <= 1e-6 {
-        return None;
-    }
-    let u = camera.cx + camera.fl_x * pc[0] / depth;
-    let v = camera.cy - camera.fl_y * pc[1] / depth;
+    let ([u, v], depth) = camera.project(p)?;
     if !(u >= 0.0 && v >= 0.0 && u < camera.w as f32 && v < camera.h as f32) {
         return None;
     }

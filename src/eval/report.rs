@@ -1,0 +1,139 @@
+//! Figures and images a stage's `report.json` is made of: PSNR in sRGB over the pixels a
+//! capture saw a surface in, depth errors, capture | render | error strips, and pose errors
+//! named by state and object.
+
+use super::pose::PoseError;
+use crate::error::{Error, Result};
+use serde::Serialize;
+use std::path::Path;
+
+fn srgb(x: f32) -> f64 {
+    super::srgb_encode(x) as f64
+}
+
+/// PSNR in sRGB of `color` against the capture `reference` over the pixels where the capture
+/// saw a surface (`reference_depth > 0`).
+pub fn covered_psnr_srgb(
+    color: &[[f32; 3]],
+    reference: &[[f32; 3]],
+    reference_depth: &[f32],
+) -> f64 {
+    let (mut se, mut n) = (0.0f64, 0usize);
+    for (i, c) in color.iter().enumerate() {
+        if reference_depth[i] > 0.0 {
+            for (&a, &b) in c.iter().zip(&reference[i]) {
+                let d = srgb(a) - srgb(b);
+                se += d * d;
+            }
+            n += 3;
+        }
+    }
+    -10.0 * (se / n.max(1) as f64).max(1e-20).log10()
+}
+
+/// Writes capture | render | 4 × |difference| side by side (a `width`-wide image each), sRGB,
+/// over the pixels where the capture saw a surface (black elsewhere); creates the directory.
+pub fn save_comparison(
+    color: &[[f32; 3]],
+    reference: &[[f32; 3]],
+    reference_depth: &[f32],
+    width: u32,
+    height: u32,
+    path: &Path,
+) -> Result<()> {
+    let w = width;
+    let mut strip = image::RgbImage::new(3 * w, height);
+    for (i, c) in color.iter().enumerate() {
+        if reference_depth[i] > 0.0 {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            let (r, g) = (c.map(srgb), reference[i].map(srgb));
+            let byte = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+            strip.put_pixel(x, y, image::Rgb(g.map(byte)));
+            strip.put_pixel(x + w, y, image::Rgb(r.map(byte)));
+            let d = [0, 1, 2].map(|k| byte(4.0 * (r[k] - g[k]).abs()));
+            strip.put_pixel(x + 2 * w, y, image::Rgb(d));
+        }
+    }
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    strip
+        .save(path)
+        .map_err(|e| Error::io(path, std::io::Error::other(e.to_string())))
+}
+
+/// |D̂ − D*| at every pixel with reference depth, in pixel order; where the render saw nothing
+/// (`alpha` 0) the error is the reference depth itself.
+pub fn depth_errors(depth: &[f32], alpha: &[f32], reference_depth: &[f32]) -> Vec<f64> {
+    (0..reference_depth.len())
+        .filter(|&i| reference_depth[i] > 0.0)
+        .map(|i| {
+            if alpha[i] > 0.0 {
+                (depth[i] - reference_depth[i]).abs() as f64
+            } else {
+                reference_depth[i] as f64
+            }
+        })
+        .collect()
+}
+
+/// Sorts `values` and returns the element at half their count (the upper median), NaN when
+/// there are none.
+pub fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(|a, b| a.total_cmp(b));
+    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// One object's estimated pose in one state against the ground truth, as `report.json` lists it.
+#[derive(Clone, Debug, Serialize)]
+pub struct ObjectPoseError {
+    pub state: String,
+    pub object: String,
+    #[serde(flatten)]
+    pub error: PoseError,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn psnr_counts_covered_pixels_only() {
+        let color = [[0.5, 0.5, 0.5], [1.0, 0.0, 0.0]];
+        let reference = [[0.5, 0.5, 0.5], [0.0, 1.0, 0.0]];
+        let exact = covered_psnr_srgb(&color, &reference, &[1.0, 0.0]);
+        assert!(exact >= 199.0, "{exact}");
+        let wrong = covered_psnr_srgb(&color, &reference, &[1.0, 1.0]);
+        assert!(wrong < 10.0, "{wrong}");
+    }
+
+    #[test]
+    fn depth_errors_and_their_median() {
+        let mut e = depth_errors(
+            &[1.0, 2.5, 0.0, 7.0],
+            &[1.0, 1.0, 0.0, 1.0],
+            &[1.5, 2.0, 3.0, 0.0],
+        );
+        assert_eq!(e, [0.5, 0.5, 3.0]);
+        assert_eq!(median(&mut e), 0.5);
+        assert!(median(&mut []).is_nan());
+    }
+
+    #[test]
+    fn pose_errors_keep_the_report_field_names() {
+        let e = ObjectPoseError {
+            state: "s1".into(),
+            object: "mug".into(),
+            error: PoseError {
+                rotation_deg: 1.0,
+                rotation_deg_raw: 2.0,
+                translation_m: 0.5,
+            },
+        };
+        let text = serde_json::to_string(&e).expect("serialises");
+        assert_eq!(
+            text,
+            r#"{"state":"s1","object":"mug","rotation_deg":1.0,"rotation_deg_ignoring_symmetry":2.0,"translation_cm":50.0}"#
+        );
+    }
+}
