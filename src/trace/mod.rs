@@ -33,19 +33,11 @@ pub mod reference;
 mod scene;
 mod surfel;
 
-pub use crate::io::gltf::{CUTOFF, MAX_OPACITY};
+pub use crate::kernel::{CUTOFF, MAX_OPACITY, MIN_ALPHA, T_MIN};
 pub use placed::Placed;
 pub use record::SurfaceRecord;
 pub use scene::TraceScene;
 pub use surfel::surfel_bounds;
-
-/// Below this effective opacity a hit is invisible in an 8-bit image, so it is dropped.
-pub const MIN_ALPHA: f32 = 1.0 / 255.0;
-
-/// Transmittance below which a ray is treated as fully absorbed: whatever lies further along
-/// can change any composited attribute by at most this fraction of its value, far below the
-/// noise of a path-traced estimate.
-pub const T_MIN: f32 = 1e-4;
 
 /// Hits gathered per sorted batch. A surfelized surface covers a point with ~28 surfels
 /// (σ = spacing, support 3σ: π·3² lattice sites), so one batch usually composites a surface to

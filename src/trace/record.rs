@@ -1,12 +1,6 @@
 //! What compositing along a ray yields (eq. surface-record).
 
-/// The material a hit contributes, stored in BVH leaf order next to the hit data.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub(crate) struct Material {
-    pub base_color: [f32; 3],
-    pub metallic: f32,
-    pub roughness: f32,
-}
+use crate::shade::brdf::Material;
 
 /// Front-to-back composite of the hits along one ray (eq. surface-record). The fields are the
 /// weighted sums Σ w_j z_j with `w_j = α_j Π_{k<j}(1 − α_k)`, i.e. the numerators of the paper's
