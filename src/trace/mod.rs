@@ -24,8 +24,13 @@
 //! rays ([`Placed::transmittance`]) need no order: they multiply `1 − α_eff` in whatever order the
 //! BVH yields hits and stop at [`T_MIN`].
 //!
+//! **Backward** ([`Placed::composite_backward`]): the adjoint of the composite for a batch of
+//! rays, with respect to the hit surfels' stored parameters and the components' placements; it
+//! re-walks each ray with the forward's own traversal and the kernel's compositing adjoint.
+//!
 //! [`reference`] holds the slow, obviously correct f64 versions the tests compare against.
 
+mod backward;
 mod batch;
 mod placed;
 mod record;
@@ -34,8 +39,9 @@ mod scene;
 mod surfel;
 
 pub use crate::kernel::{CUTOFF, MAX_OPACITY, MIN_ALPHA, T_MIN};
+pub use backward::{TraceGradients, TraceRay, TraceSurfelGrads, RAY_CHUNK};
 pub use placed::Placed;
-pub use record::SurfaceRecord;
+pub use record::{RecordGrad, SurfaceRecord};
 pub use scene::TraceScene;
 pub use surfel::surfel_bounds;
 
