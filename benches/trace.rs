@@ -7,6 +7,10 @@
 //!   visibility rays (from random surface points in random hemisphere directions), all rays in
 //!   parallel with rayon; criterion reports rays/s.
 //!
+//! - `trace_backward_200k`: a batch of 16,384 camera rays (a 128×128 view into the room):
+//!   the composited forward pass, then `composite_backward` for upstream gradients of the mean
+//!   depth, the unit normal and the opacity (with placement gradients); rays/s of the pair.
+//!
 //! - `render_128x128_32spp`: a whole image of the one-bounce estimator (eq. path-estimator) into
 //!   the room, lit by a smooth synthetic sky through its open side: 128×128 pixels at 32 spp,
 //!   rayon over rows, as `lightfuse render` does for a view (the Cycles comparison of the same
@@ -20,7 +24,7 @@ use lightfuse::scene::synthetic::SplitMix;
 use lightfuse::scene::{Camera, Component, Environment, Rigid, Scene, Surfels};
 use lightfuse::shade::envmap::EnvMap;
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter};
-use lightfuse::trace::TraceScene;
+use lightfuse::trace::{RecordGrad, TraceRay, TraceScene};
 use rayon::prelude::*;
 use std::hint::black_box;
 use std::time::Duration;
@@ -301,6 +305,50 @@ fn rays(c: &mut Criterion) {
 }
 
 /// A smooth sky: brighter towards +Y and towards one side, 128×64 texels.
+fn backward(c: &mut Criterion) {
+    let scene = room(200_000);
+    let traced = TraceScene::new(&scene);
+    let placed = traced.place_state(&scene.states[0]);
+    let parts: Vec<&Surfels> = scene.components.iter().map(|c| &c.surfels).collect();
+    let cam = camera_of(128, 128);
+    let rays: Vec<TraceRay> = (0..cam.h)
+        .flat_map(|y| (0..cam.w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let (origin, dir) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+            TraceRay {
+                origin,
+                dir,
+                t_min: 0.0,
+                t_max: f32::INFINITY,
+            }
+        })
+        .collect();
+
+    let mut group = c.benchmark_group("trace_backward_200k");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(10));
+    group.throughput(Throughput::Elements(rays.len() as u64));
+    group.bench_function("depth_normal_alpha", |b| {
+        b.iter(|| {
+            // Forward, then an L1-like upstream gradient of depth, normal and opacity.
+            let grads: Vec<RecordGrad> = rays
+                .par_iter()
+                .map(|r| {
+                    let rec = placed.composite(r.origin, r.dir, r.t_min, r.t_max);
+                    let mut g = rec.mean_depth_grad(1.0);
+                    g.add(&rec.unit_normal_grad([0.3, 0.5, 0.2]));
+                    g.alpha += 1.0;
+                    g
+                })
+                .collect();
+            placed.composite_backward(&parts, &rays, &grads, true)
+        })
+    });
+    group.finish();
+}
+
 fn sky() -> Environment {
     let (w, h) = (128usize, 64usize);
     let px = (0..w * h)
@@ -342,5 +390,5 @@ fn render(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, build, rays, render);
+criterion_group!(benches, build, rays, backward, render);
 criterion_main!(benches);

@@ -6,6 +6,7 @@ pub mod cli;
 pub mod error;
 pub mod eval;
 pub mod io;
+pub mod kernel;
 pub mod optim;
 pub mod scene;
 pub mod shade;

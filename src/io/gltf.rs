@@ -33,10 +33,8 @@ pub const KERNEL: &str = "surfel";
 pub const SURFEL_KERNEL: &str = "gaussianSurfel";
 /// Scene-linear Rec.709; KHR's nearest defined value.
 pub const COLOR_SPACE: &str = "lin_rec709_display";
-/// Support of the surfel response in standard deviations (2DGS uses 3σ).
-pub const CUTOFF: f32 = 3.0;
-/// Cap on the effective opacity of one hit (paper §"2D Gaussian ray tracing").
-pub const MAX_OPACITY: f32 = 0.99;
+/// The kernel's support and opacity cap, written into the file so a reader knows them.
+pub use crate::kernel::{CUTOFF, MAX_OPACITY};
 
 const GLB_MAGIC: &[u8; 4] = b"glTF";
 const CHUNK_JSON: u32 = 0x4E4F_534A;

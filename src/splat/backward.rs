@@ -12,6 +12,8 @@ use super::project::prefetch;
 use super::project::{facing_sign, hit, placement_frame, world_surfel, CULLED};
 use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, TransformGrad, FILTER_INV_VARIANCE};
 use super::{TILE, TILE_PIXELS};
+use crate::kernel::composite::Back;
+use crate::kernel::quat_grad;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 
@@ -242,8 +244,6 @@ fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; 
                     continue;
                 };
                 let q = &pg[p];
-                let t_in = trans[p] / (1.0 - h.alpha);
-                trans[p] = t_in;
                 let gdot = q.color[0] * s.color[0]
                     + q.color[1] * s.color[1]
                     + q.color[2] * s.color[2]
@@ -252,9 +252,12 @@ fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; 
                     + q.normal[0] * s.normal[0]
                     + q.normal[1] * s.normal[1]
                     + q.normal[2] * s.normal[2];
-                let d_alpha = t_in * (gdot - behind[p]);
-                behind[p] = h.alpha * gdot + (1.0 - h.alpha) * behind[p];
-                let w = t_in * h.alpha;
+                let mut back = Back {
+                    trans: trans[p],
+                    behind: behind[p],
+                };
+                let (w, d_alpha) = back.step(h.alpha, gdot);
+                (trans[p], behind[p]) = (back.trans, back.behind);
                 for c in 0..3 {
                     g[G_COLOR + c] += w * q.color[c];
                     g[G_NORMAL + c] += w * q.normal[c];
@@ -365,33 +368,4 @@ fn surfel_grad(
         opacity: g[G_OPACITY],
         transform: [g_a.x, g_a.y, g_a.z, omega.x, omega.y, omega.z],
     }
-}
-
-/// dL/dq for the raw quaternion q = (x, y, z, w) that is normalised and turned into R(q̂), given
-/// dL/dR as columns.
-fn quat_grad(q_raw: [f32; 4], g: Mat3) -> [f32; 4] {
-    let qv = glam::Vec4::from_array(q_raw);
-    let len = qv.length();
-    let [x, y, z, w] = (qv / len).to_array();
-    // G[r][c] = dL/dR[r][c]; columns of g are the columns of R.
-    let m = |r: usize, c: usize| g.col(c)[r];
-    let gx = 2.0 * y * (m(0, 1) + m(1, 0))
-        + 2.0 * z * (m(0, 2) + m(2, 0))
-        + 2.0 * w * (m(2, 1) - m(1, 2))
-        - 4.0 * x * (m(1, 1) + m(2, 2));
-    let gy = 2.0 * x * (m(0, 1) + m(1, 0))
-        + 2.0 * w * (m(0, 2) - m(2, 0))
-        + 2.0 * z * (m(1, 2) + m(2, 1))
-        - 4.0 * y * (m(0, 0) + m(2, 2));
-    let gz = 2.0 * w * (m(1, 0) - m(0, 1))
-        + 2.0 * x * (m(0, 2) + m(2, 0))
-        + 2.0 * y * (m(1, 2) + m(2, 1))
-        - 4.0 * z * (m(0, 0) + m(1, 1));
-    let gw = 2.0 * z * (m(1, 0) - m(0, 1))
-        + 2.0 * y * (m(0, 2) - m(2, 0))
-        + 2.0 * x * (m(2, 1) - m(1, 2));
-    // Through the normalisation: (I − q̂ q̂ᵀ) / |q|.
-    let gq = glam::Vec4::new(gx, gy, gz, gw);
-    let qh = qv / len;
-    ((gq - qh * qh.dot(gq)) / len).to_array()
 }

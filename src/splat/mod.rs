@@ -48,8 +48,7 @@ pub mod sh;
 use crate::scene::{Camera, Rigid, Surfels};
 use glam::{Quat, Vec3};
 
-pub use crate::io::gltf::{CUTOFF, MAX_OPACITY};
-pub use crate::trace::{MIN_ALPHA, T_MIN};
+pub use crate::kernel::{CUTOFF, MAX_OPACITY, MIN_ALPHA, T_MIN};
 
 /// Side of a square tile, pixels (2DGS's BLOCK_X = BLOCK_Y = 16).
 pub const TILE: u32 = 16;

@@ -2,7 +2,8 @@
 //! surfel's hit test as a handful of affine coefficients (2DGS's homography, written as a ray–
 //! plane intersection), its colour, its pixel rectangle, and the depth-sorted tile lists.
 
-use super::{sh, Placement, CUTOFF, FILTER_INV_VARIANCE, MAX_OPACITY, MIN_ALPHA, NEAR, TILE};
+use super::{sh, Placement, FILTER_INV_VARIANCE, MIN_ALPHA, NEAR, TILE};
+use crate::kernel::{r2_max, response};
 use crate::scene::{Camera, Surfels};
 use glam::{Mat3, Quat, Vec3};
 use rayon::prelude::*;
@@ -133,7 +134,7 @@ pub(crate) struct Splat {
     pub zc: f32,
     pub opacity: f32,
     /// Largest ρ that can pass both the support and the opacity threshold:
-    /// min(CUTOFF², 2 ln(α / MIN_ALPHA) + slack); the exact tests in [`hit`] decide.
+    /// [`crate::kernel::r2_max`]; the exact tests in [`hit`] decide.
     pub rho_max: f32,
     /// Colour after the clamp at 0.
     pub color: [f32; 3],
@@ -207,16 +208,11 @@ pub(crate) fn hit(s: &Splat, u: f32, v: f32) -> Option<Hit> {
     if !(rho <= s.rho_max && z >= NEAR) {
         return None;
     }
-    let g = (-0.5 * rho).exp();
-    let raw = s.opacity * g;
-    let alpha = raw.min(MAX_OPACITY);
-    if alpha < MIN_ALPHA {
-        return None;
-    }
+    let r = response(s.opacity, rho)?;
     Some(Hit {
-        alpha,
-        g,
-        clamped: raw > MAX_OPACITY,
+        alpha: r.alpha,
+        g: r.g,
+        clamped: r.capped,
         z,
         plane,
         t,
@@ -230,9 +226,6 @@ pub(crate) fn hit(s: &Splat, u: f32, v: f32) -> Option<Hit> {
     })
 }
 
-/// Slack on the opacity bound of ρ so that f32 rounding never lets the prefilter drop a hit the
-/// exact tests would keep.
-const RHO_SLACK: f32 = 1e-3;
 /// Margin of a pixel rectangle, pixels: the rectangle is computed in f32 too.
 const RECT_MARGIN: f32 = 0.01;
 
@@ -309,10 +302,11 @@ fn finite3(v: Vec3) -> bool {
     v.is_finite()
 }
 
-/// Largest ρ a hit can have (see [`Splat::rho_max`]).
-#[inline]
+/// Largest ρ a hit can have (see [`Splat::rho_max`]): the kernel's bound on |ξ|², which the
+/// filter's ρ_2d obeys too.
+#[inline(always)]
 fn rho_max(opacity: f32) -> f32 {
-    (CUTOFF * CUTOFF).min(2.0 * (opacity / MIN_ALPHA).ln() + RHO_SLACK)
+    r2_max(opacity)
 }
 
 /// Centre depth and pixel rectangle, or `None` if the surfel cannot be hit: centre nearer than

@@ -24,8 +24,13 @@
 //! rays ([`Placed::transmittance`]) need no order: they multiply `1 − α_eff` in whatever order the
 //! BVH yields hits and stop at [`T_MIN`].
 //!
+//! **Backward** ([`Placed::composite_backward`]): the adjoint of the composite for a batch of
+//! rays, with respect to the hit surfels' stored parameters and the components' placements; it
+//! re-walks each ray with the forward's own traversal and the kernel's compositing adjoint.
+//!
 //! [`reference`] holds the slow, obviously correct f64 versions the tests compare against.
 
+mod backward;
 mod batch;
 mod placed;
 mod record;
@@ -33,19 +38,12 @@ pub mod reference;
 mod scene;
 mod surfel;
 
-pub use crate::io::gltf::{CUTOFF, MAX_OPACITY};
+pub use crate::kernel::{CUTOFF, MAX_OPACITY, MIN_ALPHA, T_MIN};
+pub use backward::{TraceGradients, TraceRay, TraceSurfelGrads, RAY_CHUNK};
 pub use placed::Placed;
-pub use record::SurfaceRecord;
+pub use record::{RecordGrad, SurfaceRecord};
 pub use scene::TraceScene;
 pub use surfel::surfel_bounds;
-
-/// Below this effective opacity a hit is invisible in an 8-bit image, so it is dropped.
-pub const MIN_ALPHA: f32 = 1.0 / 255.0;
-
-/// Transmittance below which a ray is treated as fully absorbed: whatever lies further along
-/// can change any composited attribute by at most this fraction of its value, far below the
-/// noise of a path-traced estimate.
-pub const T_MIN: f32 = 1e-4;
 
 /// Hits gathered per sorted batch. A surfelized surface covers a point with ~28 surfels
 /// (σ = spacing, support 3σ: π·3² lattice sites), so one batch usually composites a surface to

@@ -10,10 +10,10 @@ use obvhs::ray::{Ray, RayHit};
 
 /// One component placed in the world.
 #[derive(Clone, Copy, Debug)]
-struct Instance {
+pub(super) struct Instance {
     /// World from component frame: x_w = R x + t.
-    rotation: Mat3,
-    translation: Vec3,
+    pub rotation: Mat3,
+    pub translation: Vec3,
     /// World bounds of the component's supports; `None` for an empty component.
     bounds: Option<(Vec3, Vec3)>,
 }
@@ -44,8 +44,8 @@ fn obvhs_ray(o: Vec3, d: Vec3, t_lo: f32, t_hi: f32) -> Ray {
 
 /// A [`TraceScene`] in one placement (a state or a layout).
 pub struct Placed<'a> {
-    scene: &'a TraceScene,
-    instances: Vec<Instance>,
+    pub(super) scene: &'a TraceScene,
+    pub(super) instances: Vec<Instance>,
 }
 
 impl<'a> Placed<'a> {
@@ -95,8 +95,34 @@ impl<'a> Placed<'a> {
     ) -> SurfaceRecord {
         let o = Vec3::from_array(origin);
         let d = Vec3::from_array(dir);
-        let inv_d = d.recip();
         let mut record = SurfaceRecord::default();
+        self.walk(o, d, t_min, t_max, |w, c, h| {
+            let blas = &self.scene.blas[c];
+            let slot = h.slot as usize;
+            let mut n = self.instances[c].rotation * Vec3::from_array(blas.hit[slot].n);
+            if n.dot(d) > 0.0 {
+                n = -n;
+            }
+            let x = o + h.t * d;
+            record.add(w, h.t, x.to_array(), n.to_array(), &blas.material[slot]);
+        });
+        record
+    }
+
+    /// The traversal behind [`Placed::composite`] and its backward pass: calls `visit(w,
+    /// component, hit)` for every hit that is composited, front to back, with its weight
+    /// `w = T α` (eq. surface-record). One copy, so the backward pass sees exactly the forward's
+    /// hits in the forward's order.
+    #[inline]
+    pub(super) fn walk(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_min: f32,
+        t_max: f32,
+        mut visit: impl FnMut(f32, usize, &Hit),
+    ) {
+        let inv_d = d.recip();
         // Hits must come strictly after `after`; u64::MAX excludes every key at t_min itself.
         let mut after = (t_min, u64::MAX);
         let mut carry = 1.0f32;
@@ -137,18 +163,10 @@ impl<'a> Placed<'a> {
                 );
             }
             for (w, h) in batch.weighted() {
-                let c = (h.key >> 32) as usize;
-                let blas = &self.scene.blas[c];
-                let slot = h.slot as usize;
-                let mut n = self.instances[c].rotation * Vec3::from_array(blas.hit[slot].n);
-                if n.dot(d) > 0.0 {
-                    n = -n;
-                }
-                let x = o + h.t * d;
-                record.add(w, h.t, x.to_array(), n.to_array(), &blas.material[slot]);
+                visit(w, (h.key >> 32) as usize, h);
             }
             if batch.finishes() {
-                return record;
+                return;
             }
             (after, carry) = batch.resume();
         }

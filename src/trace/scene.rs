@@ -1,9 +1,9 @@
 //! The bottom level: one BVH per component, built once in the component's own frame.
 
 use super::placed::Placed;
-use super::record::Material;
 use super::surfel::{surfel_bounds, HitSurfel};
 use crate::scene::{Rigid, Scene, State, Surfels};
+use crate::shade::brdf::Material;
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::{builder::build_cwbvh, CwBvh};
 use obvhs::BvhBuildParams;
@@ -16,6 +16,7 @@ pub(crate) struct Blas {
     /// `None` for a component without surfels.
     pub bvh: Option<CwBvh>,
     pub hit: Vec<HitSurfel>,
+    /// The material a hit contributes, in leaf order next to the hit data.
     pub material: Vec<Material>,
     /// The surfel's index in the component, for the tie-break and for callers.
     pub index: Vec<u32>,

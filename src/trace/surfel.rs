@@ -1,6 +1,7 @@
 //! One surfel as the hit test sees it (eq. gaussian-response), and its bounds.
 
-use super::{CUTOFF, MAX_OPACITY, MIN_ALPHA};
+use super::CUTOFF;
+use crate::kernel::{r2_max, response};
 use crate::scene::quat_axes;
 use glam::Vec3;
 
@@ -15,8 +16,8 @@ pub(crate) struct HitSurfel {
     pub alpha: f32,
     /// Unit normal n (third column of R(q)).
     pub n: [f32; 3],
-    /// Largest |ξ|² that can pass both the support and the opacity threshold:
-    /// min(CUTOFF², 2 ln(α / MIN_ALPHA)) plus a hair, so the exact test below decides.
+    /// Largest |ξ|² that can pass both the support and the opacity threshold
+    /// ([`crate::kernel::r2_max`]); the exact test in `hit` decides.
     pub r2_max: f32,
     /// t_u / s_u: (x − μ)·u is ξ_u.
     pub u: [f32; 3],
@@ -31,14 +32,11 @@ impl HitSurfel {
         let [tu, tv, n] = quat_axes(rotation);
         let u = Vec3::from_array(tu) / scale[0];
         let v = Vec3::from_array(tv) / scale[1];
-        // α·exp(−½ r²) ≥ MIN_ALPHA ⇔ r² ≤ 2 ln(α / MIN_ALPHA); the slack only lets the exact
-        // comparison in `hit` settle borderline cases. α = 0 gives −∞: never hit.
-        let r2_alpha = 2.0 * (opacity / MIN_ALPHA).ln() + 1e-4;
         HitSurfel {
             mu: position,
             alpha: opacity,
             n,
-            r2_max: r2_alpha.min(CUTOFF * CUTOFF),
+            r2_max: r2_max(opacity),
             u: u.to_array(),
             _pad0: 0.0,
             v: v.to_array(),
@@ -48,7 +46,7 @@ impl HitSurfel {
 
     /// The hit of the ray `o + t d` with `t` in `[t_lo, t_hi]` (inclusive; callers apply their
     /// own strictness and tie-breaks): `(t, α_eff)`, or `None` when the plane is missed, the
-    /// hit lies outside the support or is fainter than [`MIN_ALPHA`]. Never yields NaN: a ray in
+    /// hit lies outside the support or is fainter than [`super::MIN_ALPHA`]. Never yields NaN: a ray in
     /// the plane gives t = NaN or ±∞, which every comparison below rejects.
     #[inline(always)]
     pub fn hit(&self, o: Vec3, d: Vec3, t_lo: f32, t_hi: f32) -> Option<(f32, f32)> {
@@ -67,12 +65,8 @@ impl HitSurfel {
         if r2.is_nan() || r2 > self.r2_max {
             return None;
         }
-        // eq. gaussian-response, capped for numerical stability (paper: 0.99).
-        let alpha = (self.alpha * (-0.5 * r2).exp()).min(MAX_OPACITY);
-        if alpha < MIN_ALPHA {
-            return None;
-        }
-        Some((t, alpha))
+        // eq. gaussian-response, capped and thresholded as the rasteriser does.
+        response(self.alpha, r2).map(|r| (t, r.alpha))
     }
 }
 
