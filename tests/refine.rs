@@ -135,28 +135,83 @@ fn cameras() -> Vec<Camera> {
         .collect()
 }
 
-/// The captures of the intact scene: depth and unit normal where the traced alpha is ≥ ½.
-fn capture(components: &[Component], transforms: &[Rigid], state: usize) -> Vec<Observation> {
-    let refs: Vec<&Surfels> = components.iter().map(|c| &c.surfels).collect();
-    let scene = TraceScene::from_components(&refs);
-    let placed = scene.place(transforms);
+/// The first hit of a ray with the true shapes the surfels stand for: the floor, the two walls
+/// and the box placed by `boxt` (distance along the unit direction, world normal).
+fn true_hit(o: Vec3, d: Vec3, boxt: &Rigid) -> Option<(f32, Vec3, u8)> {
+    let mut best: Option<(f32, Vec3, u8)> = None;
+    let mut take = |t: f32, n: Vec3, id: u8| {
+        if t > 1e-4 && best.is_none_or(|(b, _, _)| t < b) {
+            best = Some((t, n, id));
+        }
+    };
+    // Axis-aligned rectangles of the background: (axis, plane value, ranges of the other two).
+    let rects = [
+        (1, 0.0, [(-1.0, 1.0), (-1.0, 1.0)]),  // floor y = 0 (x, z)
+        (2, -1.0, [(-1.0, 1.0), (0.0, 1.0)]),  // back wall z = −1 (x, y)
+        (0, -1.0, [(0.0, 1.0), (-1.0, 1.0)]),  // left wall x = −1 (y, z)
+    ];
+    for (axis, value, ranges) in rects {
+        let t = (value - o[axis]) / d[axis];
+        let p = o + t * d;
+        let others: Vec<usize> = (0..3).filter(|&k| k != axis).collect();
+        if (0..2).all(|k| p[others[k]] >= ranges[k].0 && p[others[k]] <= ranges[k].1) {
+            let mut n = Vec3::ZERO;
+            n[axis] = 1.0;
+            take(t, n, 0);
+        }
+    }
+    // The box, slab test in its own frame.
+    let inv = boxt.inverse();
+    let q = Quat::from_array(inv.rotation);
+    let (lo_o, lo_d) = (Vec3::from_array(inv.transform_point(o.to_array())), q * d);
+    let (lo, hi) = (Vec3::new(0.0, 0.0, -0.2), Vec3::new(0.4, 0.4, 0.2));
+    let (mut t0, mut t1, mut axis) = (f32::NEG_INFINITY, f32::INFINITY, 0);
+    for k in 0..3 {
+        let (a, b) = ((lo[k] - lo_o[k]) / lo_d[k], (hi[k] - lo_o[k]) / lo_d[k]);
+        let (near, far) = (a.min(b), a.max(b));
+        if near > t0 {
+            t0 = near;
+            axis = k;
+        }
+        t1 = t1.min(far);
+    }
+    if t0 <= t1 && t0 > 0.0 {
+        let mut n = Vec3::ZERO;
+        n[axis] = 1.0;
+        take(t0, Quat::from_array(boxt.rotation) * n, 1);
+    }
+    best
+}
+
+/// Captures of the true shapes (as Cycles' pixel-centre depth and normal passes are): planar
+/// depth and the normal facing the camera; 0 where the ray escapes.
+fn capture(transforms: &[Rigid], state: usize) -> Vec<Observation> {
     cameras()
         .into_iter()
         .enumerate()
         .map(|(v, camera)| {
-            let t = lightfuse::eval::geometry::trace_view(&placed, &camera);
-            let n = t.alpha.len();
-            let hit = |i: usize| t.alpha[i] >= 0.5;
+            let n = (camera.w * camera.h) as usize;
+            let mut depth = vec![0.0; n];
+            let mut normal = vec![[0.0; 3]; n];
+            let mut mask = vec![0u8; n];
+            for i in 0..n {
+                let (x, y) = (i % camera.w as usize, i / camera.w as usize);
+                let (o, d) = camera.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
+                let (o, d) = (Vec3::from_array(o), Vec3::from_array(d));
+                if let Some((t, nn, id)) = true_hit(o, d, &transforms[1]) {
+                    depth[i] = t;
+                    mask[i] = id;
+                    normal[i] = (if nn.dot(d) > 0.0 { -nn } else { nn }).to_array();
+                }
+            }
             Observation {
                 state,
                 view: v,
                 camera,
                 rgb: vec![[0.0; 3]; n],
-                depth: (0..n).map(|i| if hit(i) { t.depth[i] } else { 0.0 }).collect(),
-                normal: (0..n)
-                    .map(|i| if hit(i) { t.normal[i] } else { [0.0; 3] })
-                    .collect(),
-                mask: vec![0; n],
+                depth,
+                normal,
+                mask,
             }
         })
         .collect()
@@ -169,23 +224,23 @@ fn damage(components: &[Component]) -> Vec<Component> {
         .iter()
         .map(|c| {
             let s = &c.surfels;
-            // Holes: every surfel within 7 cm of a few random centres is removed.
-            let centres: Vec<Vec3> = (0..6)
+            // Holes: every surfel within 15 cm of ten random centres is removed.
+            let centres: Vec<Vec3> = (0..10)
                 .map(|_| Vec3::from_array(s.position[(rng.next_u64() % s.len() as u64) as usize]))
                 .collect();
             let mut out = Surfels::with_sh_degree(0);
             for i in 0..s.len() {
                 let p = Vec3::from_array(s.position[i]);
-                if centres.iter().any(|q| q.distance(p) < 0.07) {
+                if centres.iter().any(|q| q.distance(p) < 0.15) {
                     continue;
                 }
                 let mut rot = s.rotation[i];
                 let mut scale = s.scale[i];
                 let mut opacity = s.opacity[i];
                 let r = rng.f32();
-                if r < 0.1 {
-                    scale = scale.map(|x| 3.0 * x);
-                } else if r < 0.4 {
+                if r < 0.05 {
+                    scale = scale.map(|x| 2.5 * x);
+                } else if r < 0.35 {
                     let axis = Vec3::new(rng.range(-1.0, 1.0), 0.0, rng.range(-1.0, 1.0));
                     let q = Quat::from_array(rot);
                     let tilt = Quat::from_axis_angle(
@@ -193,7 +248,7 @@ fn damage(components: &[Component]) -> Vec<Component> {
                         25f32.to_radians(),
                     );
                     rot = (tilt * q).normalize().to_array();
-                } else if r < 0.6 {
+                } else if r < 0.55 {
                     opacity *= 0.3;
                 }
                 out.push(
@@ -234,7 +289,7 @@ fn refine_repairs_a_damaged_scene() {
     let captures: Vec<Vec<Observation>> = states()
         .iter()
         .enumerate()
-        .map(|(k, tf)| capture(&intact, tf, k))
+        .map(|(k, tf)| capture(tf, k))
         .collect();
     let damaged = damage(&intact);
     let truth = measure(&intact, &captures);

@@ -22,8 +22,8 @@
 //! depth, and it only asks the surfels to block where the captured surfaces are.
 
 use crate::io::dataset::Observation;
-use crate::scene::synthetic::SplitMix;
 use crate::scene::Camera;
+use crate::scene::synthetic::SplitMix;
 use crate::trace::Placed;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -49,7 +49,8 @@ pub struct LeakOptions {
     pub step: f32,
     /// The ray is not judged before this distance: the surface it starts from is not a blocker.
     pub min_distance: f32,
-    /// The surfels may block up to this far past the reference blocker, metres.
+    /// The surfels may block up to this far past the point where the captures put the ray
+    /// behind the surface, metres.
     pub slack: f32,
     /// Seed of the direction sequence.
     pub seed: u64,
@@ -64,7 +65,7 @@ impl Default for LeakOptions {
             surface_margin: 0.02,
             step: 0.01,
             min_distance: 0.03,
-            slack: 0.03,
+            slack: 0.02,
             seed: 7,
         }
     }
@@ -97,16 +98,6 @@ pub struct TracedView {
     pub normal: Vec<[f32; 3]>,
 }
 
-/// The camera's origin and the direction through pixel coordinates (u, v) scaled so that
-/// d · forward = 1: the ray parameter of a hit is then its planar depth (DESIGN §2).
-pub fn planar_ray(camera: &Camera, u: f32, v: f32) -> ([f32; 3], [f32; 3]) {
-    let (o, d) = camera.ray(u, v);
-    let m = &camera.transform_matrix;
-    let fwd = Vec3::new(-m[0][2], -m[1][2], -m[2][2]);
-    let d = Vec3::from_array(d);
-    (o, (d / d.dot(fwd)).to_array())
-}
-
 /// Traces every pixel centre of the camera through the placed scene.
 pub fn trace_view(placed: &Placed, camera: &Camera) -> TracedView {
     let (w, h) = (camera.w as usize, camera.h as usize);
@@ -115,7 +106,7 @@ pub fn trace_view(placed: &Placed, camera: &Camera) -> TracedView {
         .with_min_len(64)
         .map(|i| {
             let (x, y) = (i % w, i / w);
-            let (o, d) = planar_ray(camera, x as f32 + 0.5, y as f32 + 0.5);
+            let (o, d) = camera.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
             placed.composite(o, d, 0.0, f32::INFINITY)
         })
         .collect();
@@ -209,86 +200,68 @@ pub fn tally_view(traced: &TracedView, obs: &Observation) -> GeometryTally {
     t
 }
 
-/// How one capture sees a point.
-#[derive(Clone, Copy, PartialEq, Eq)]
-enum Seen {
-    /// Outside the image or behind the camera.
-    Unseen,
-    /// In front of what the capture saw there (or the capture saw the environment there).
-    Free,
-    /// On the captured surface, within the margin.
-    Surface,
-    /// Behind the captured surface.
-    Behind,
+/// Where a point is for one capture: `sd` = captured depth − the point's depth at the pixel it
+/// projects to (positive in front of the captured surface), and that captured depth `d`; `None`
+/// outside the image or behind the camera. `d = 0` (the capture saw the environment) gives
+/// `sd = +∞`.
+#[derive(Clone, Copy, Debug)]
+struct Look {
+    sd: f32,
+    d: f32,
+    /// The captured normal there.
+    n: Vec3,
 }
 
-/// A capture's camera reduced to what projecting a point needs.
-struct Eye<'a> {
+fn look(obs: &Observation, q: Vec3) -> Option<Look> {
+    let cam = &obs.camera;
+    let ([u, v], z) = cam.project(q.to_array())?;
+    if !(u >= 0.0 && v >= 0.0 && u < cam.w as f32 && v < cam.h as f32) {
+        return None;
+    }
+    let i = v as usize * cam.w as usize + u as usize;
+    let d = obs.depth[i];
+    Some(Look {
+        sd: if d > 0.0 { d - z } else { f32::INFINITY },
+        d,
+        n: Vec3::from_array(obs.normal[i]),
+    })
+}
+
+/// Distance along `o + s ω` at which the captures say the ray goes through a surface, if they
+/// do: between two steps, some capture sees the point pass from in front of its captured
+/// surface to behind it, on the same surface (its captured depth changes by less than the
+/// margin: a point that passes behind a silhouette jumps from one surface to another and does
+/// not count), and no capture sees the point more than the margin in front of what it saw
+/// there. `o` lies `lift` above the surface it starts from, whose normal is `n`. Also returns
+/// how far past that point the surfels may still block: the captures' depth is sampled per
+/// pixel, so the crossing is known to within about a pixel's footprint along the surface,
+/// which a grazing ray travels a long way through (`slack / |ω · n_surface|`, at most 5×).
+fn reference_blocker(
+    views: &[&Observation],
     o: Vec3,
-    right: Vec3,
-    up: Vec3,
-    fwd: Vec3,
-    cam: &'a Camera,
-    depth: &'a [f32],
-}
-
-impl<'a> Eye<'a> {
-    fn new(obs: &'a Observation) -> Self {
-        let m = &obs.camera.transform_matrix;
-        let col = |c: usize| Vec3::new(m[0][c], m[1][c], m[2][c]);
-        Eye {
-            o: col(3),
-            right: col(0),
-            up: col(1),
-            fwd: -col(2),
-            cam: &obs.camera,
-            depth: &obs.depth,
-        }
-    }
-
-    fn see(&self, q: Vec3, margin: f32) -> Seen {
-        let a = q - self.o;
-        let z = a.dot(self.fwd);
-        if z <= 1e-3 {
-            return Seen::Unseen;
-        }
-        let u = self.cam.cx + self.cam.fl_x * a.dot(self.right) / z;
-        let v = self.cam.cy - self.cam.fl_y * a.dot(self.up) / z;
-        let (w, h) = (self.cam.w as f32, self.cam.h as f32);
-        if !(u >= 0.0 && v >= 0.0 && u < w && v < h) {
-            return Seen::Unseen;
-        }
-        let d = self.depth[v as usize * self.cam.w as usize + u as usize];
-        if d <= 0.0 || z < d - margin {
-            Seen::Free
-        } else if z <= d + margin {
-            Seen::Surface
-        } else {
-            Seen::Behind
-        }
-    }
-}
-
-/// Distance along `o + s ω` at which the captures say the ray is blocked, if they do.
-fn reference_blocker(eyes: &[Eye], o: Vec3, w: Vec3, max: f32, opts: &LeakOptions) -> Option<f32> {
-    let mut s = opts.min_distance;
+    n: Vec3,
+    w: Vec3,
+    max: f32,
+    opts: &LeakOptions,
+) -> Option<(f32, f32)> {
+    let m = opts.surface_margin;
+    // Near the surface it starts from, a grazing ray is "on" that surface for every capture,
+    // and that surface cannot block it. Judge it only once clear of it.
+    let clear = (2.0 * m - opts.lift) / w.dot(n).max(1e-3);
+    let mut s = opts.min_distance.max(clear);
+    let mut prev: Vec<Option<Look>> = vec![None; views.len()];
     while s <= max {
         let q = o + s * w;
-        let mut surface = false;
-        let mut free = false;
-        for e in eyes {
-            match e.see(q, opts.surface_margin) {
-                Seen::Free => {
-                    free = true;
-                    break;
-                }
-                Seen::Surface => surface = true,
-                Seen::Unseen | Seen::Behind => {}
-            }
+        let now: Vec<Option<Look>> = views.iter().map(|obs| look(obs, q)).collect();
+        let free = now.iter().flatten().any(|l| l.sd > m);
+        let crossed = now.iter().zip(&prev).find_map(|(a, b)| match (a, b) {
+            (Some(a), Some(b)) if b.sd >= 0.0 && a.sd < 0.0 && (a.d - b.d).abs() < m => Some(a.n),
+            _ => None,
+        });
+        if let (Some(ns), false) = (crossed, free) {
+            return Some((s, opts.slack / w.dot(ns).abs().max(0.2)));
         }
-        if surface && !free {
-            return Some(s);
-        }
+        prev = now;
         s += opts.step;
     }
     None
@@ -311,7 +284,6 @@ pub fn tally_leaks(
     extent: f32,
     opts: &LeakOptions,
 ) -> GeometryTally {
-    let eyes: Vec<Eye> = state_views.iter().map(|o| Eye::new(o)).collect();
     let cam = &obs.camera;
     let (w, h) = (cam.w as usize, cam.h as usize);
     let stride = opts.stride.max(1);
@@ -324,7 +296,7 @@ pub fn tally_leaks(
         .par_iter()
         .map(|&i| {
             let (x, y) = (i % w, i / w);
-            let (o, d) = planar_ray(cam, x as f32 + 0.5, y as f32 + 0.5);
+            let (o, d) = cam.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
             let p = Vec3::from_array(o) + obs.depth[i] * Vec3::from_array(d);
             let mut n = Vec3::from_array(obs.normal[i]).normalize();
             if n.dot(Vec3::from_array(d)) > 0.0 {
@@ -335,7 +307,8 @@ pub fn tally_leaks(
             let (mut blocked, mut leaking) = (0, 0);
             for _ in 0..opts.directions {
                 let dir = cosine_direction(n, rng.f32(), rng.f32());
-                let Some(s) = reference_blocker(&eyes, start, dir, extent, opts) else {
+                let Some((s, slack)) = reference_blocker(state_views, start, n, dir, extent, opts)
+                else {
                     continue;
                 };
                 blocked += 1;
@@ -343,9 +316,13 @@ pub fn tally_leaks(
                     start.to_array(),
                     dir.to_array(),
                     0.0,
-                    s + opts.slack,
+                    s + slack,
                 );
                 if tr > 1.0 - COVERED {
+                    if std::env::var("LF_DEBUG").is_ok() {
+                        let rec = placed.composite(start.to_array(), dir.to_array(), 0.0, f32::INFINITY);
+                        eprintln!("LEAK p={start:?} n={n:?} dir={dir:?} s={s} tr={tr} first_hit_depth={} alpha={}", rec.mean_depth(), rec.alpha);
+                    }
                     leaking += 1;
                 }
             }

@@ -72,6 +72,29 @@ impl TraceSurfelGrads {
             roughness: vec![0.0; n],
         }
     }
+
+    /// Adds `other`'s gradients (same component, same surfels), e.g. from another state's rays.
+    pub fn add(&mut self, other: &TraceSurfelGrads) {
+        fn acc<const K: usize>(a: &mut [[f32; K]], b: &[[f32; K]]) {
+            for (x, y) in a.iter_mut().zip(b) {
+                for k in 0..K {
+                    x[k] += y[k];
+                }
+            }
+        }
+        fn acc1(a: &mut [f32], b: &[f32]) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+        acc(&mut self.position, &other.position);
+        acc(&mut self.rotation, &other.rotation);
+        acc(&mut self.scale, &other.scale);
+        acc1(&mut self.opacity, &other.opacity);
+        acc(&mut self.base_color, &other.base_color);
+        acc1(&mut self.metallic, &other.metallic);
+        acc1(&mut self.roughness, &other.roughness);
+    }
 }
 
 /// Everything [`Placed::composite_backward`] returns, one entry per component.

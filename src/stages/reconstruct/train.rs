@@ -256,6 +256,30 @@ impl RawComponent {
         s
     }
 
+    /// Appends `new` surfels (the same SH degree) with their SH as the shared appearance and zero
+    /// residuals; returns how many. The optimiser's moments are the caller's to extend.
+    pub fn append(&mut self, new: &Surfels) -> usize {
+        let mut raw = RawComponent::from_component(
+            &Component {
+                name: String::new(),
+                id: 0,
+                surfels: new.clone(),
+            },
+            self.sh.len() - 1,
+        );
+        assert_eq!(
+            raw.sh_degree, self.sh_degree,
+            "added surfels share the SH degree"
+        );
+        for g in 0..self.groups() {
+            self.group_mut(g).extend_from_slice(raw.group_mut(g));
+        }
+        self.base_color.extend(&raw.base_color);
+        self.metallic.extend(&raw.metallic);
+        self.roughness.extend(&raw.roughness);
+        raw.len()
+    }
+
     /// Keeps surfels `keep` (in that order).
     pub fn gather(&mut self, keep: &[usize]) {
         for g in 0..self.groups() {
@@ -740,27 +764,11 @@ impl Trainer {
     /// optimiser moments.
     pub fn add_surfels(&mut self, c: usize, new: &Surfels) {
         let comp = &mut self.model.components[c];
-        let raw = RawComponent::from_component(
-            &Component {
-                name: String::new(),
-                id: 0,
-                surfels: new.clone(),
-            },
-            comp.sh.len() - 1,
-        );
-        assert_eq!(
-            raw.sh_degree, comp.sh_degree,
-            "completion surfels share the SH degree"
-        );
-        let mut raw = raw;
+        let added = comp.append(new);
         for g in 0..comp.groups() {
-            comp.group_mut(g).extend_from_slice(raw.group_mut(g));
             let gi = self.adam.group_index(&group_name(c, g)).unwrap();
-            self.adam.append_points(gi, raw.len());
+            self.adam.append_points(gi, added);
         }
-        comp.base_color.extend(&raw.base_color);
-        comp.metallic.extend(&raw.metallic);
-        comp.roughness.extend(&raw.roughness);
         self.grad_accum[c].resize(comp.len(), 0.0);
         self.grad_count[c].resize(comp.len(), 0);
     }

@@ -6,12 +6,12 @@ use crate::error::{Error, Result};
 use crate::eval::geometry::{tally_state, GeometryFigures, GeometryTally, LeakOptions};
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
+use crate::stages::common::{read_checkpoint, say, write_checkpoint, Progress, StageLog};
 use crate::scene::{Scene, BACKGROUND};
 use crate::stages::reconstruct::run::split;
 use crate::trace::TraceScene;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -51,16 +51,12 @@ pub struct Report {
     pub surfels_before: usize,
     pub surfels_after: usize,
     pub pruned: usize,
+    /// Surfels added where the traced surfels left captured surfaces uncovered.
+    pub filled: usize,
     /// Over the held-out views of every training state, traced with the state's poses.
     pub before: GeometryFigures,
     pub after: GeometryFigures,
     pub states: Vec<StateFigures>,
-}
-
-fn say(quiet: bool, s: &str) {
-    if !quiet {
-        eprintln!("{s}");
-    }
 }
 
 /// Stage 1's scene, checked against the dataset: the same objects (names and mask ids) and a
@@ -160,24 +156,21 @@ struct Checkpoint {
     surfels_before: usize,
 }
 
-fn write_checkpoint(dir: &Path, c: &Checkpoint) -> Result<()> {
-    let bytes = serde_json::to_vec(c).map_err(|e| Error::Usage(format!("checkpoint: {e}")))?;
-    let mut files = AtomicFiles::new();
-    files.write(&checkpoint_path(dir), &bytes)?;
-    files.commit()
-}
-
-fn read_checkpoint(path: &Path, settings: &Settings) -> Result<Checkpoint> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let c: Checkpoint = serde_json::from_slice(&bytes)
-        .map_err(|e| Error::invalid(path, "checkpoint", format!("unreadable: {e}")))?;
-    if c.refiner.settings != *settings {
+fn read_resumable(path: &Path, settings: &Settings) -> Result<Checkpoint> {
+    let mut c: Checkpoint = read_checkpoint(path)?;
+    // A run may be resumed to go further; everything else must be what it started with.
+    let same = |s: &Settings| Settings {
+        iterations: 0,
+        ..s.clone()
+    };
+    if same(&c.refiner.settings) != same(settings) {
         return Err(Error::invalid(
             path,
             "settings",
-            "the checkpoint was made with other settings: resume with the same preset and switches, or start afresh without --resume",
+            "the checkpoint was made with other settings: resume with the same preset, seed and switches, or start afresh without --resume",
         ));
     }
+    c.refiner.set_iterations(settings.iterations);
     Ok(c)
 }
 
@@ -240,7 +233,7 @@ pub fn refine(opts: &Options) -> Result<Report> {
     let log_path = out_dir.join("log.jsonl");
     let resumed = opts.resume && ckpt.is_file();
     let mut c = if resumed {
-        let c = read_checkpoint(&ckpt, &opts.settings)?;
+        let c = read_resumable(&ckpt, &opts.settings)?;
         say(
             opts.quiet,
             &format!(
@@ -263,24 +256,11 @@ pub fn refine(opts: &Options) -> Result<Report> {
             surfels_before: scene.surfel_count(),
         }
     };
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .write(true)
-        .append(resumed)
-        .truncate(!resumed)
-        .open(&log_path)
-        .map_err(|e| Error::io(&log_path, e))?;
+    let mut log = StageLog::create(&log_path, resumed)?;
 
     let total = opts.settings.iterations;
-    let bar = crate::stages::reconstruct::run::progress_bar(
-        opts.quiet,
-        total as u64,
-        "refining",
-    );
-    bar.set_position(c.refiner.iteration as u64);
-    let start = c.refiner.iteration;
-    let t_loop = Instant::now();
-    let plain_every = (total / 10).max(1);
+    let mut bar = Progress::new(opts.quiet, total as u64, "refining");
+    bar.start_at(c.refiner.iteration as u64);
     let mut window = Losses::default();
     let mut window_n = 0u32;
     while c.refiner.iteration < total {
@@ -303,32 +283,20 @@ pub fn refine(opts: &Options) -> Result<Report> {
                 "depth_normal": window.depth_normal / k,
                 "seconds": t0.elapsed().as_secs_f64(),
             });
-            writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
-            let status = format!(
+            log.write(&line)?;
+            bar.status(&format!(
                 "loss {:.4} · {} surfels",
                 window.total / k,
                 c.refiner.surfel_count()
-            );
-            if bar.is_hidden() && it % plain_every == 0 {
-                let spent = t_loop.elapsed().as_secs_f64();
-                let left = spent / (it - start).max(1) as f64 * (total - it) as f64;
-                say(
-                    opts.quiet,
-                    &format!(
-                        "refining {it}/{total} ({:.0} %) {status} · {spent:.0} s, ~{left:.0} s left",
-                        100.0 * it as f64 / total.max(1) as f64
-                    ),
-                );
-            }
-            bar.set_prefix(status);
+            ));
             window = Losses::default();
             window_n = 0;
         }
         if it % CHECKPOINT_EVERY == 0 || it == total {
-            write_checkpoint(&out_dir, &c)?;
+            write_checkpoint(&ckpt, &c)?;
         }
     }
-    bar.finish_and_clear();
+    bar.finish();
 
     let mut refined = scene.clone();
     refined.components = c.refiner.scene_components();
@@ -349,6 +317,7 @@ pub fn refine(opts: &Options) -> Result<Report> {
         surfels_before: c.surfels_before,
         surfels_after: c.refiner.surfel_count(),
         pruned: c.refiner.pruned,
+        filled: c.refiner.filled,
         before: c.before.clone(),
         after,
         states: eval_states

@@ -27,6 +27,7 @@ use crate::scene::synthetic::SplitMix;
 use crate::scene::{Camera, Component, Rigid, Surfels};
 use crate::splat;
 use crate::stages::reconstruct::train::RawComponent;
+use crate::stages::reconstruct::{completion, init};
 use crate::trace::{RecordGrad, SurfaceRecord, TraceRay, TraceScene};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -76,6 +77,13 @@ pub struct Settings {
     /// cannot be seen (the tracer drops hits fainter than 1/255) but still cost traversal.
     pub prune_opacity: f32,
     pub prune_every: u32,
+    /// Every `fill_every` iterations in [fill_every, fill_until], surface pixels of the training
+    /// views that the traced surfels leave uncovered (Σw < ½) get new surfels back-projected
+    /// from the captures' depth (stage 1's completion seeding, voxel-thinned at `fill_voxel`):
+    /// a hole wider than a surfel's support gives no gradient to close it.
+    pub fill_every: u32,
+    pub fill_until: u32,
+    pub fill_voxel: f32,
     pub switches: Switches,
     pub seed: u64,
 }
@@ -102,6 +110,9 @@ impl Settings {
             lambda_depth_normal: 0.05,
             prune_opacity: 0.005,
             prune_every: 100,
+            fill_every: 150,
+            fill_until: 450,
+            fill_voxel: 0.01,
             switches: Switches::default(),
             seed: 0,
         }
@@ -112,6 +123,8 @@ impl Settings {
         Settings {
             iterations: 5000,
             patches: 256,
+            fill_every: 500,
+            fill_until: 3000,
             ..Settings::fast()
         }
     }
@@ -158,6 +171,7 @@ pub struct Refiner {
     pub adam: Adam,
     pub iteration: u32,
     pub pruned: usize,
+    pub filled: usize,
     rng: u64,
 }
 
@@ -215,6 +229,27 @@ impl Refiner {
             adam,
             iteration: 0,
             pruned: 0,
+            filled: 0,
+        }
+    }
+
+    /// Sets the run's length (a resumed run may go further): the position rate's decay is
+    /// stretched to the new end.
+    pub fn set_iterations(&mut self, iterations: u32) {
+        self.settings.iterations = iterations;
+        for c in 0..self.components.len() {
+            let gi = self
+                .adam
+                .group_index(&format!("c{c}.position"))
+                .expect("every component has its groups");
+            self.adam.set_schedule(
+                gi,
+                Schedule::Exponential {
+                    lr_init: self.settings.lr_position_init,
+                    lr_final: self.settings.lr_position_final,
+                    steps: iterations as u64,
+                },
+            );
         }
     }
 
@@ -291,7 +326,7 @@ impl Refiner {
                 (0..per_patch).map(move |i| {
                     let (x, y) = (p.x0 + i as u32 % side, p.y0 + i as u32 / side);
                     let (origin, dir) =
-                        crate::eval::geometry::planar_ray(cam, x as f32 + 0.5, y as f32 + 0.5);
+                        cam.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
                     TraceRay {
                         origin,
                         dir,
@@ -397,7 +432,77 @@ impl Refiner {
         if s.prune_every > 0 && self.iteration % s.prune_every == 0 {
             self.prune();
         }
+        if s.fill_every > 0 && self.iteration % s.fill_every == 0 && self.iteration <= s.fill_until
+        {
+            self.fill_holes(states);
+        }
         losses
+    }
+
+    /// Seeds surfels where the captures saw a surface that the traced surfels do not cover
+    /// (see [`Settings::fill_every`]), each into the component its mask names, in that
+    /// component's frame. Returns how many were added.
+    pub fn fill_holes(&mut self, states: &[TrainState]) -> usize {
+        let surfels = self.surfels();
+        let refs: Vec<&Surfels> = surfels.iter().collect();
+        let scene = TraceScene::from_components(&refs);
+        let ids: Vec<u32> = self.components.iter().map(|c| c.id).collect();
+        let mut clouds = vec![init::PointCloud::default(); ids.len()];
+        for (j, st) in states.iter().enumerate() {
+            let placed = scene.place(&st.transforms);
+            for obs in &st.views {
+                let traced = crate::eval::geometry::trace_view(&placed, &obs.camera);
+                let holes: Vec<bool> = obs
+                    .depth
+                    .iter()
+                    .zip(&traced.alpha)
+                    .map(|(&d, &a)| d > 0.0 && a < crate::eval::geometry::COVERED)
+                    .collect();
+                let Ok(seeds) = completion::seed_points(obs, &holes) else {
+                    continue;
+                };
+                for i in 0..seeds.len() {
+                    let c = ids
+                        .iter()
+                        .position(|&id| id == seeds.mask[i] as u32)
+                        .unwrap_or(0);
+                    // World → the component's frame (the inverse of its placement in state j).
+                    let inv = st.transforms[c].inverse();
+                    let n = inv.quat() * glam::Vec3::from_array(seeds.normal[i]);
+                    clouds[c].push(
+                        inv.transform_point(seeds.position[i]),
+                        n.to_array(),
+                        seeds.rgb[i],
+                        seeds.mask[i],
+                        j as u32,
+                        seeds.footprint[i],
+                    );
+                }
+            }
+        }
+        let mut added = 0;
+        for (c, cloud) in clouds.iter().enumerate() {
+            if cloud.is_empty() {
+                continue;
+            }
+            let opts = init::InitOptions {
+                voxel: self.settings.fill_voxel,
+                sh_degree: self.components[c].sh_degree,
+                ..Default::default()
+            };
+            let new = init::points_to_surfels(&init::voxel_thin(cloud, opts.voxel), &opts);
+            let n = self.components[c].append(&new);
+            for (name, _) in GROUPS {
+                let gi = self
+                    .adam
+                    .group_index(&format!("c{c}.{name}"))
+                    .expect("every component has its groups");
+                self.adam.append_points(gi, n);
+            }
+            added += n;
+        }
+        self.filled += added;
+        added
     }
 
     /// Removes surfels fainter than `prune_opacity` (their Adam moments with them).
