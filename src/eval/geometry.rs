@@ -22,8 +22,8 @@
 //! depth, and it only asks the surfels to block where the captured surfaces are.
 
 use crate::io::dataset::Observation;
-use crate::scene::Camera;
 use crate::scene::synthetic::SplitMix;
+use crate::scene::Camera;
 use crate::trace::Placed;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -312,17 +312,8 @@ pub fn tally_leaks(
                     continue;
                 };
                 blocked += 1;
-                let tr = placed.transmittance(
-                    start.to_array(),
-                    dir.to_array(),
-                    0.0,
-                    s + slack,
-                );
+                let tr = placed.transmittance(start.to_array(), dir.to_array(), 0.0, s + slack);
                 if tr > 1.0 - COVERED {
-                    if std::env::var("LF_DEBUG").is_ok() {
-                        let rec = placed.composite(start.to_array(), dir.to_array(), 0.0, f32::INFINITY);
-                        eprintln!("LEAK p={start:?} n={n:?} dir={dir:?} s={s} tr={tr} first_hit_depth={} alpha={}", rec.mean_depth(), rec.alpha);
-                    }
                     leaking += 1;
                 }
             }

@@ -8,12 +8,14 @@
 //!
 //! Per patch of `patch × patch` pixels (a patch, not scattered pixels, because the
 //! depth-derived normal of L_DN^ray needs each pixel's four neighbours):
-//! - L_α: mean |Σw − 𝟙[D* > 0]| (eq. alpha-coverage, extended as in stage 1 to push pixels that
-//!   saw the environment to transparent: those are where a false occluder shows);
+//! - L_α: |Σw − 𝟙[D* > 0]| (eq. alpha-coverage, extended as in stage 1 to push pixels that saw
+//!   the environment to transparent: those are where a false occluder shows), the batch's
+//!   surface pixels and its environment pixels each averaged and weighted one half;
 //! - L_D: eq. reconstruction-depth on the traced depth z̄ = Σw t / Σw (rays with d·forward = 1,
 //!   so t is planar depth), confidence = the capture's validity;
-//! - L_N: 1 − Σw n · N* (the composited normal sum, as stage 1 splats it: not renormalised, so
-//!   it also asks for coverage where a surface was seen);
+//! - L_N: 1 − n̂ · N*, n̂ the composited normal renormalised as the shader sees it (stage 1
+//!   splats the plain sum Σw n, which also pulls coverage up wherever a surface was seen; here
+//!   coverage is L_α's alone, so that discs are not pushed past silhouettes);
 //! - L_DN^ray: 1 − N^D · N*, N^D the normals of the traced depth patch (central differences,
 //!   [`crate::optim::depth_normal_loss`] with the reference normals);
 //! - L_s: eq. scale-regularization over every surfel.
@@ -219,7 +221,12 @@ impl Refiner {
                         lr: settings.lr_opacity,
                     },
                 };
-                adam.add_group(&format!("c{c}.{name}"), comp.len() * width, *width, schedule);
+                adam.add_group(
+                    &format!("c{c}.{name}"),
+                    comp.len() * width,
+                    *width,
+                    schedule,
+                );
             }
         }
         Refiner {
@@ -325,8 +332,7 @@ impl Refiner {
                 let cam = &states[p.state].views[p.view].camera;
                 (0..per_patch).map(move |i| {
                     let (x, y) = (p.x0 + i as u32 % side, p.y0 + i as u32 / side);
-                    let (origin, dir) =
-                        cam.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
+                    let (origin, dir) = cam.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
                     TraceRay {
                         origin,
                         dir,
@@ -336,7 +342,10 @@ impl Refiner {
                 })
             })
             .collect();
-        let placed: Vec<_> = states.iter().map(|st| scene.place(&st.transforms)).collect();
+        let placed: Vec<_> = states
+            .iter()
+            .map(|st| scene.place(&st.transforms))
+            .collect();
         let records: Vec<SurfaceRecord> = rays
             .par_iter()
             .enumerate()
@@ -347,13 +356,34 @@ impl Refiner {
             .collect();
 
         // Per patch: the losses and dL/d(record sums) of its pixels.
+        // L_α weighs the batch's surface pixels and its environment pixels as two halves: a
+        // view sees far more surface than sky, and a plain mean lets discs grow past silhouettes
+        // (more surface covered, a little sky occluded) until false occlusion sets in.
+        let (mut surface, mut environment) = (0usize, 0usize);
+        for p in &patches {
+            let obs = states[p.state].views[p.view];
+            let w = obs.camera.w as usize;
+            for i in 0..per_patch {
+                let (x, y) = (
+                    p.x0 as usize + i % side as usize,
+                    p.y0 as usize + i / side as usize,
+                );
+                if obs.depth[y * w + x] > 0.0 {
+                    surface += 1;
+                } else {
+                    environment += 1;
+                }
+            }
+        }
+        let half = |n: usize| if n > 0 { 0.5 / n as f32 } else { 0.0 };
+        let coverage_weights = (half(surface), half(environment));
         let per: Vec<(Losses, Vec<RecordGrad>)> = patches
             .par_iter()
             .enumerate()
             .map(|(k, p)| {
                 let obs = states[p.state].views[p.view];
                 let rec = &records[k * per_patch..(k + 1) * per_patch];
-                patch_losses(&s, obs, p, side, rec, inv_p)
+                patch_losses(&s, obs, p, side, rec, inv_p, coverage_weights)
             })
             .collect();
         let mut losses = Losses::default();
@@ -541,23 +571,28 @@ fn patch_losses(
     side: u32,
     rec: &[SurfaceRecord],
     inv_p: f32,
+    (w_surface, w_environment): (f32, f32),
 ) -> (Losses, Vec<RecordGrad>) {
     let sw = s.switches;
     let n = rec.len();
     let w = obs.camera.w as usize;
-    let pix = |i: usize| (p.y0 as usize + i / side as usize) * w + p.x0 as usize + i % side as usize;
+    let pix =
+        |i: usize| (p.y0 as usize + i / side as usize) * w + p.x0 as usize + i % side as usize;
     let ref_depth: Vec<f32> = (0..n).map(|i| obs.depth[pix(i)]).collect();
     let ref_normal: Vec<[f32; 3]> = (0..n).map(|i| obs.normal[pix(i)]).collect();
     let depth: Vec<f32> = rec.iter().map(SurfaceRecord::mean_depth).collect();
-    let normal_sum: Vec<[f32; 3]> = rec.iter().map(|r| r.normal).collect();
+    let normal: Vec<[f32; 3]> = rec.iter().map(SurfaceRecord::unit_normal).collect();
     let mut l = Losses::default();
     let mut g_alpha = vec![0.0f32; n];
     let mut g_depth = vec![0.0f32; n];
     let mut g_normal = vec![[0.0f32; 3]; n];
     if sw.coverage {
-        let inv = inv_p / n as f32;
         for i in 0..n {
-            let target = if ref_depth[i] > 0.0 { 1.0 } else { 0.0 };
+            let (target, inv) = if ref_depth[i] > 0.0 {
+                (1.0, w_surface)
+            } else {
+                (0.0, w_environment)
+            };
             let d = rec[i].alpha - target;
             l.alpha += s.lambda_alpha * d.abs() * inv;
             if d != 0.0 {
@@ -573,7 +608,7 @@ fn patch_losses(
         }
     }
     if sw.normal {
-        let nl = optim::normal_loss(&normal_sum, &ref_normal, None);
+        let nl = optim::normal_loss(&normal, &ref_normal, None);
         l.normal = s.lambda_normal * nl.value * inv_p;
         for (g, d) in g_normal.iter_mut().zip(&nl.grad) {
             for k in 0..3 {
@@ -591,10 +626,8 @@ fn patch_losses(
     let grads = (0..n)
         .map(|i| {
             let mut g = rec[i].mean_depth_grad(g_depth[i]);
+            g.add(&rec[i].unit_normal_grad(g_normal[i]));
             g.alpha += g_alpha[i];
-            for k in 0..3 {
-                g.normal[k] += g_normal[i][k];
-            }
             g
         })
         .collect();
