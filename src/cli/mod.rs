@@ -506,17 +506,20 @@ fn attach_dataset_states(
     Ok(())
 }
 
+/// A stage's settings by `--preset` name.
+fn preset<T>(name: &str, fast: fn() -> T, paper: fn() -> T) -> Result<T> {
+    match name {
+        "fast" => Ok(fast()),
+        "paper" => Ok(paper()),
+        other => Err(Error::Usage(format!(
+            "--preset: expected \"fast\" or \"paper\", found {other:?}"
+        ))),
+    }
+}
+
 fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
     use crate::stages::reconstruct::{run, train::Settings};
-    let mut settings = match a.preset.as_str() {
-        "fast" => Settings::fast(),
-        "paper" => Settings::paper(),
-        other => {
-            return Err(Error::Usage(format!(
-                "--preset: expected \"fast\" or \"paper\", found {other:?}"
-            )))
-        }
-    };
+    let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
     if let Some(n) = a.iterations {
         settings.iterations = n;
     }
@@ -581,15 +584,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
 
 fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
     use crate::stages::refine::{self, Settings, Switches};
-    let mut settings = match a.preset.as_str() {
-        "fast" => Settings::fast(),
-        "paper" => Settings::paper(),
-        other => {
-            return Err(Error::Usage(format!(
-                "--preset: expected \"fast\" or \"paper\", found {other:?}"
-            )))
-        }
-    };
+    let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
     if let Some(n) = a.iterations {
         settings.iterations = n;
     }

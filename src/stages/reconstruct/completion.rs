@@ -64,6 +64,35 @@ impl SeedPoints {
     pub fn is_empty(&self) -> bool {
         self.position.is_empty()
     }
+
+    /// Adds each point to `clouds[c]`, c the component whose mask id (`ids[c]`) the point
+    /// carries (the background, 0, when none does), moved into that component's frame:
+    /// `transforms[c]` places component c in the state the points were seen in
+    /// (eq. state-assembly), whose index `state` each point records.
+    pub fn add_to_components(
+        &self,
+        ids: &[u32],
+        transforms: &[crate::scene::Rigid],
+        state: u32,
+        clouds: &mut [super::init::PointCloud],
+    ) {
+        for i in 0..self.len() {
+            let c = ids
+                .iter()
+                .position(|&id| id == self.mask[i] as u32)
+                .unwrap_or(0);
+            let inv = transforms[c].inverse();
+            let n = inv.quat() * glam::Vec3::from_array(self.normal[i]);
+            clouds[c].push(
+                inv.transform_point(self.position[i]),
+                n.to_array(),
+                self.rgb[i],
+                self.mask[i],
+                state,
+                self.footprint[i],
+            );
+        }
+    }
 }
 
 /// Back-projects the pixels of `obs` where `select` is true and the depth is positive.

@@ -395,31 +395,14 @@ fn complete(trainer: &mut Trainer, train: &[Vec<Observation>], opts: &Options) -
     let ids: Vec<u32> = trainer.model.components.iter().map(|c| c.id).collect();
     let mut per_component: Vec<init::PointCloud> = vec![init::PointCloud::default(); ids.len()];
     for (j, views) in train.iter().enumerate() {
+        let transforms: Vec<Rigid> = std::iter::once(Rigid::IDENTITY)
+            .chain(trainer.model.poses[j].iter().copied())
+            .collect();
         for o in views {
             let img = render_state(&trainer.model, j, &o.camera);
             let mask = completion::completion_mask(&img.depth, &o.depth, opts.tau_d)?;
             let seeds = completion::seed_points(o, &mask)?;
-            for i in 0..seeds.len() {
-                let c = ids
-                    .iter()
-                    .position(|&id| id == seeds.mask[i] as u32)
-                    .unwrap_or(0);
-                let mut p = seeds.position[i];
-                let mut n = seeds.normal[i];
-                if c > 0 {
-                    let inv = trainer.model.poses[j][c - 1].inverse();
-                    p = inv.transform_point(p);
-                    n = (inv.quat() * Vec3::from_array(n)).to_array();
-                }
-                per_component[c].push(
-                    p,
-                    n,
-                    seeds.rgb[i],
-                    seeds.mask[i],
-                    j as u32,
-                    seeds.footprint[i],
-                );
-            }
+            seeds.add_to_components(&ids, &transforms, j as u32, &mut per_component);
         }
     }
     let mut added = 0;

@@ -256,6 +256,15 @@ impl RawComponent {
         s
     }
 
+    /// The named component with state 0's appearance (the shared SH plus its residual).
+    pub fn component(&self) -> Component {
+        Component {
+            name: self.name.clone(),
+            id: self.id,
+            surfels: self.surfels(0),
+        }
+    }
+
     /// Appends `new` surfels (the same SH degree) with their SH as the shared appearance and zero
     /// residuals; returns how many. The optimiser's moments are the caller's to extend.
     pub fn append(&mut self, new: &Surfels) -> usize {
@@ -354,11 +363,7 @@ impl Model {
     pub fn scene_components(&self) -> Vec<Component> {
         self.components
             .iter()
-            .map(|c| Component {
-                name: c.name.clone(),
-                id: c.id,
-                surfels: c.surfels(0),
-            })
+            .map(RawComponent::component)
             .collect()
     }
 

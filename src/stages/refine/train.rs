@@ -273,11 +273,7 @@ impl Refiner {
     pub fn scene_components(&self) -> Vec<Component> {
         self.components
             .iter()
-            .map(|c| Component {
-                name: c.name.clone(),
-                id: c.id,
-                surfels: c.surfels(0),
-            })
+            .map(RawComponent::component)
             .collect()
     }
 
@@ -491,23 +487,7 @@ impl Refiner {
                 let Ok(seeds) = completion::seed_points(obs, &holes) else {
                     continue;
                 };
-                for i in 0..seeds.len() {
-                    let c = ids
-                        .iter()
-                        .position(|&id| id == seeds.mask[i] as u32)
-                        .unwrap_or(0);
-                    // World → the component's frame (the inverse of its placement in state j).
-                    let inv = st.transforms[c].inverse();
-                    let n = inv.quat() * glam::Vec3::from_array(seeds.normal[i]);
-                    clouds[c].push(
-                        inv.transform_point(seeds.position[i]),
-                        n.to_array(),
-                        seeds.rgb[i],
-                        seeds.mask[i],
-                        j as u32,
-                        seeds.footprint[i],
-                    );
-                }
+                seeds.add_to_components(&ids, &st.transforms, j as u32, &mut clouds);
             }
         }
         let mut added = 0;
