@@ -13,10 +13,11 @@
 //! - **light leaks**: shadow rays from observed surface points (a grid of the evaluated views'
 //!   surface pixels, back-projected with the capture's depth and lifted along its normal) in
 //!   cosine-distributed directions about the captured normal. A ray is *blocked* by the
-//!   reference geometry where it first reaches a point that every capture of the state either
-//!   does not see or sees on a surface (within [`LeakOptions::surface_margin`] of its depth), and
-//!   at least one sees on a surface: no capture saw through it. A blocked ray *leaks* when the
-//!   surfels let more than half its light through up to a little past that point.
+//!   reference geometry where, between two steps of a march along it, some capture of the state
+//!   sees it go from in front of its captured surface to behind it (on the same surface: the
+//!   captured depth does not jump) while no capture sees through the point. A blocked ray
+//!   *leaks* when the surfels let more than half its light through up to a little past that
+//!   point (`reference_blocker`).
 //!
 //! Captures decide what is blocked, so the figure needs no mesh: it works on any dataset with
 //! depth, and it only asks the surfels to block where the captured surfaces are.
