@@ -207,6 +207,90 @@ pub fn eval_f_cos(n: Vec3, wo: Vec3, wi: Vec3, m: &Material) -> [f32; 3] {
     eval_f(n, wo, wi, m).map(|v| v * cos_i)
 }
 
+/// dL/d(material) for one material: the adjoint [`eval_f_cos_grad`] returns, and what path
+/// replay sends to a surface record's mean material.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MaterialGrad {
+    pub base_color: [f32; 3],
+    pub metallic: f32,
+    pub roughness: f32,
+}
+
+impl MaterialGrad {
+    /// Adds `o` field by field.
+    pub fn add(&mut self, o: &MaterialGrad) {
+        for c in 0..3 {
+            self.base_color[c] += o.base_color[c];
+        }
+        self.metallic += o.metallic;
+        self.roughness += o.roughness;
+    }
+}
+
+/// The adjoint of [`eval_f_cos`] in the material: given `g` = dL/d(f·cos θi) (three
+/// channels), dL/d(base colour, metallic, roughness). Directions and normal are held fixed.
+///
+/// With F0_c = 0.04 (1 − m) + a_c m, F_c = F0_c + (1 − F0_c) s, k = (1 − F_d)/π and DV the
+/// specular D·V (module doc), f_c = (1 − m) a_c k + F_c DV, so
+///
+/// ```text
+/// ∂f_c/∂a_c = (1 − m) k + m (1 − s) DV
+/// ∂f_c/∂m   = −a_c k + (a_c − 0.04) (1 − s) DV
+/// ∂f_c/∂r   = F_c ∂(DV)/∂α · ∂α/∂r,   ∂α/∂r = 2r where r² > MIN_ALPHA, else 0 (the clamp)
+/// ∂D/∂α = 2α/(π q²) · (1 − 2α² c²/q),  q = c² (α² − 1) + 1, c = n·h
+/// ∂V/∂α = −2V² (cos_i ∂A/∂α + cos_o ∂B/∂α),  A = √(cos_o²(1 − α²) + α²), ∂A/∂α = α (1 − cos_o²)/A
+/// ```
+///
+/// (B likewise with cos_i), each times cos θi. Zero wherever `eval_f_cos` is the constant zero.
+pub fn eval_f_cos_grad(n: Vec3, wo: Vec3, wi: Vec3, m: &Material, g: [f32; 3]) -> MaterialGrad {
+    let zero = MaterialGrad::default();
+    let cos_i = n.dot(wi);
+    let frame = Frame::new(n);
+    let (wo, wi) = (frame.to_local(wo), frame.to_local(wi));
+    if cos_i <= 0.0 || wo.z <= 0.0 || wi.z <= 0.0 {
+        return zero;
+    }
+    let h = (wo + wi).normalize_or_zero();
+    if h == Vec3::ZERO {
+        return zero;
+    }
+    let alpha = m.alpha();
+    let s = schlick_weight(wo.dot(h).abs());
+    let d = ggx_d(h.z, alpha);
+    let v = smith_v_height_correlated(wo.z, wi.z, alpha);
+    let dv = d * v;
+    let k = (1.0 - (DIELECTRIC_F0 + (1.0 - DIELECTRIC_F0) * s)) / PI;
+    // d(DV)/dα.
+    let a2 = alpha * alpha;
+    let c2 = h.z * h.z;
+    let q = c2 * (a2 - 1.0) + 1.0;
+    let dd = if h.z > 0.0 {
+        2.0 * alpha / (PI * q * q) * (1.0 - 2.0 * a2 * c2 / q)
+    } else {
+        0.0
+    };
+    let big_a = (wo.z * wo.z * (1.0 - a2) + a2).sqrt();
+    let big_b = (wi.z * wi.z * (1.0 - a2) + a2).sqrt();
+    let da = alpha * (1.0 - wo.z * wo.z) / big_a;
+    let db = alpha * (1.0 - wi.z * wi.z) / big_b;
+    let dvv = -2.0 * v * v * (wi.z * da + wo.z * db);
+    let ddv = dd * v + d * dvv;
+    let r = m.roughness;
+    let dalpha_dr = if r * r > MIN_ALPHA { 2.0 * r } else { 0.0 };
+    let mm = m.metallic;
+    let f0 = m.f0();
+    let mut out = zero;
+    for c in 0..3 {
+        let gc = g[c] * cos_i;
+        let a = m.base_color[c];
+        let fc = f0[c] + (1.0 - f0[c]) * s;
+        out.base_color[c] = gc * ((1.0 - mm) * k + mm * (1.0 - s) * dv);
+        out.metallic += gc * (-a * k + (a - DIELECTRIC_F0) * (1.0 - s) * dv);
+        out.roughness += gc * fc * ddv * dalpha_dr;
+    }
+    out
+}
+
 /// Probability of drawing from the GGX lobe for a view at cos θo: the Schlick estimate of the
 /// specular albedo against the diffuse albedo left under it (luminance), each lobe kept at
 /// least [`MIN_LOBE_PROB`] when the diffuse lobe is present at all.

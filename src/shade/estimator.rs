@@ -41,9 +41,10 @@
 
 use super::brdf::{self, Material};
 use super::envmap::EnvMap;
+use super::replay::{Bounce, PathReplay, Term};
 use super::sobol::Sampler;
 use crate::scene::{Camera, Scene, State};
-use crate::trace::{Placed, SurfaceRecord};
+use crate::trace::{Placed, SurfaceRecord, TraceRay};
 use glam::Vec3;
 
 /// Sobol dimensions of one path sample. Fixed, so a path replays from (pixel, sample, seed).
@@ -131,11 +132,6 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
 }
 
 #[inline]
-fn mul3(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] * b[0], a[1] * b[1], a[2] * b[2]]
-}
-
-#[inline]
 fn add_scaled(acc: &mut [f32; 3], v: [f32; 3], s: f32) {
     for c in 0..3 {
         acc[c] += v[c] * s;
@@ -183,26 +179,52 @@ impl<'a> Estimator<'a> {
         sampler: &Sampler,
         index: u32,
     ) -> PathSample {
-        let record = self.scene.composite(origin, dir, 0.0, f32::INFINITY);
-        let d = Vec3::from_array(dir);
-        if record.hits == 0 || record.alpha <= 0.0 {
-            // Seen only the environment: exactly its value (the world shading of Cycles).
-            return PathSample {
-                radiance: self.env.eval(d),
-                record,
-                rays: 1,
-            };
-        }
-        let mut rays = 1;
-        let surface = self.shade_primary(&record, -d, sampler, index, &mut rays);
-        let behind = self.env.eval(d);
-        let a = record.alpha;
-        let radiance = [0, 1, 2].map(|c| a * surface[c] + (1.0 - a) * behind[c]);
+        let p = self.replay(origin, dir, sampler, index);
         PathSample {
-            radiance,
-            record,
-            rays,
+            radiance: p.radiance(self.env),
+            record: p.record,
+            rays: p.rays,
         }
+    }
+
+    /// The path sample [`Estimator::radiance`] draws, as its decisions and terms
+    /// ([`PathReplay`]): the forward pass and path replay are this one walk.
+    pub fn replay(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        sampler: &Sampler,
+        index: u32,
+    ) -> PathReplay {
+        let record = self.scene.composite(origin, dir, 0.0, f32::INFINITY);
+        let camera = TraceRay {
+            origin,
+            dir,
+            t_min: 0.0,
+            t_max: f32::INFINITY,
+        };
+        let mut p = PathReplay::new(camera, record);
+        let d = Vec3::from_array(dir);
+        let a = if record.hits == 0 {
+            0.0
+        } else {
+            record.alpha.max(0.0)
+        };
+        // Seen through the record (or, with no hit, only the environment: exactly its value,
+        // the world shading of Cycles).
+        p.push(Term {
+            scale: 1.0 - a,
+            primary: None,
+            secondary: None,
+            env_dir: d,
+        });
+        if a > 0.0 {
+            if let Some(s) = Shading::of(&record) {
+                p.materials[0] = s.material;
+                self.shade_primary(&s, -d, a, sampler, index, &mut p);
+            }
+        }
+        p
     }
 
     /// Visibility of the environment from `s` along `wi`: the transmittance of the offset ray.
@@ -214,114 +236,133 @@ impl<'a> Estimator<'a> {
             .transmittance(o.to_array(), wi.to_array(), self.eps, f32::INFINITY)
     }
 
-    /// Outgoing radiance towards `wo` of a primary record of unit coverage (eq.
-    /// rendering-equation with L_e = 0), estimated by eq. path-estimator with S = 1.
+    /// The terms of the outgoing radiance towards `wo` of a primary record of coverage `a`
+    /// (eq. rendering-equation with L_e = 0, estimated by eq. path-estimator with S = 1):
+    /// (a) environment next-event estimation, MIS against the BSDF density; (b) one BSDF
+    /// continuation, its escaped share MIS-weighted against the environment density and its
+    /// secondary record shaded by next-event estimation only.
     fn shade_primary(
         &self,
-        record: &SurfaceRecord,
+        s: &Shading,
         wo: Vec3,
+        a: f32,
         sampler: &Sampler,
         index: u32,
-        rays: &mut u32,
-    ) -> [f32; 3] {
-        let Some(s) = Shading::of(record) else {
-            return [0.0; 3];
-        };
-        let mut l = [0.0f32; 3];
-        // (a) Environment next-event estimation, MIS against the BSDF density.
-        self.env_nee(
-            &s,
+        p: &mut PathReplay,
+    ) {
+        // (a)
+        if let Some((b, scale)) = self.env_nee(
+            s,
             wo,
             sampler.get_2d(index, dim::ENV_NEE),
             true,
-            1.0,
-            &mut l,
-            rays,
-        );
-        // (b) One BSDF continuation: escaped share MIS-weighted against the environment
-        // density, secondary record shaded by next-event estimation only.
+            &mut p.rays,
+        ) {
+            p.push(Term {
+                scale: a * scale,
+                primary: Some(b),
+                secondary: None,
+                env_dir: b.wi,
+            });
+        }
+        // (b)
         let u_lobe = sampler.get(index, dim::LOBE);
         let u_dir = sampler.get_2d(index, dim::BSDF);
-        if let Some(bs) = brdf::sample(s.n, wo, &s.material, u_dir, u_lobe) {
-            let o = s.x + self.eps * s.n;
-            *rays += 1;
-            let rec2 =
-                self.scene
-                    .composite(o.to_array(), bs.wi.to_array(), self.eps, f32::INFINITY);
-            let mut incoming = [0.0f32; 3];
-            let escaped = 1.0 - rec2.alpha;
-            if escaped > 0.0 {
-                let w = power_heuristic(bs.pdf, self.env.pdf(bs.wi));
-                add_scaled(&mut incoming, self.env.eval(bs.wi), escaped * w);
-            }
-            if rec2.hits > 0 && rec2.alpha > 0.0 {
-                let l2 = self.shade_secondary(&rec2, -bs.wi, sampler, index, rays);
-                add_scaled(&mut incoming, l2, rec2.alpha);
-            }
-            add_scaled(&mut l, mul3(bs.weight, incoming), 1.0);
-        }
-        l
-    }
-
-    /// Outgoing radiance of a secondary record: the mean of two environment next-event samples
-    /// with visibility (no MIS: no BSDF strategy competes at the last vertex).
-    fn shade_secondary(
-        &self,
-        record: &SurfaceRecord,
-        wo: Vec3,
-        sampler: &Sampler,
-        index: u32,
-        rays: &mut u32,
-    ) -> [f32; 3] {
-        let Some(s) = Shading::of(record) else {
-            return [0.0; 3];
+        let Some(bs) = brdf::sample(s.n, wo, &s.material, u_dir, u_lobe) else {
+            return;
         };
-        let mut l = [0.0f32; 3];
-        for d in dim::SECONDARY_ENV {
-            let n = dim::SECONDARY_ENV.len() as f32;
-            self.env_nee(
-                &s,
-                wo,
-                sampler.get_2d(index, d),
-                false,
-                1.0 / n,
-                &mut l,
-                rays,
-            );
+        let o = s.x + self.eps * s.n;
+        p.rays += 1;
+        let ray = TraceRay {
+            origin: o.to_array(),
+            dir: bs.wi.to_array(),
+            t_min: self.eps,
+            t_max: f32::INFINITY,
+        };
+        let rec2 = self
+            .scene
+            .composite(ray.origin, ray.dir, ray.t_min, ray.t_max);
+        p.continuation = Some((ray, rec2));
+        let first = Bounce {
+            n: s.n,
+            wo,
+            wi: bs.wi,
+            f: brdf::eval_f_cos(s.n, wo, bs.wi, &s.material),
+        };
+        let a2 = if rec2.hits == 0 {
+            0.0
+        } else {
+            rec2.alpha.max(0.0)
+        };
+        let escaped = 1.0 - a2;
+        if escaped > 0.0 {
+            let w = power_heuristic(bs.pdf, self.env.pdf(bs.wi));
+            p.push(Term {
+                scale: a * escaped * w / bs.pdf,
+                primary: Some(first),
+                secondary: None,
+                env_dir: bs.wi,
+            });
         }
-        l
+        if a2 > 0.0 {
+            let Some(s2) = Shading::of(&rec2) else {
+                return;
+            };
+            p.materials[1] = s2.material;
+            // The secondary record: the mean of two environment next-event samples with
+            // visibility (no MIS: no BSDF strategy competes at the last vertex).
+            let n = dim::SECONDARY_ENV.len() as f32;
+            for d in dim::SECONDARY_ENV {
+                if let Some((b2, scale)) =
+                    self.env_nee(&s2, -bs.wi, sampler.get_2d(index, d), false, &mut p.rays)
+                {
+                    p.push(Term {
+                        scale: a * a2 / bs.pdf * scale / n,
+                        primary: Some(first),
+                        secondary: Some(b2),
+                        env_dir: b2.wi,
+                    });
+                }
+            }
+        }
     }
 
-    /// One environment next-event sample at a shading point: f·cos·L·T / pdf, times the power
-    /// heuristic against the BSDF density when `mis` (a BSDF continuation competes), times `scale`.
-    #[allow(clippy::too_many_arguments)]
+    /// One environment next-event sample at a shading point: the BRDF factor at the sampled
+    /// direction and the frozen scale T / pdf, times the power heuristic against the BSDF
+    /// density when `mis` (a BSDF continuation competes). `None` when it contributes nothing
+    /// (then no visibility ray is traced when f is zero).
     fn env_nee(
         &self,
         s: &Shading,
         wo: Vec3,
         u: [f32; 2],
         mis: bool,
-        scale: f32,
-        l: &mut [f32; 3],
         rays: &mut u32,
-    ) {
+    ) -> Option<(Bounce, f32)> {
         let es = self.env.sample(u);
         if es.pdf <= 0.0 {
-            return;
+            return None;
         }
         let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
         if f.iter().all(|&v| v <= 0.0) {
-            return;
+            return None;
         }
         let tr = self.visibility(s, es.dir, rays);
-        if tr > 0.0 {
-            let w = if mis {
-                power_heuristic(es.pdf, brdf::pdf(s.n, wo, es.dir, &s.material))
-            } else {
-                1.0
-            };
-            add_scaled(l, mul3(f, es.radiance), tr * w * scale / es.pdf);
+        if tr <= 0.0 {
+            return None;
         }
+        let w = if mis {
+            power_heuristic(es.pdf, brdf::pdf(s.n, wo, es.dir, &s.material))
+        } else {
+            1.0
+        };
+        let b = Bounce {
+            n: s.n,
+            wo,
+            wi: es.dir,
+            f,
+        };
+        Some((b, tr * w / es.pdf))
     }
 }
 

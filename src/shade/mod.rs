@@ -7,6 +7,7 @@
 //!   Environment Texture (after the axis change of DESIGN §2, with the state's rotation about
 //!   +Y), and their importance sampling;
 //! - [`render`]: the estimator over every pixel of a camera, into an image's channels;
+//! - [`replay`]: path replay, a path sample's decisions and terms, and their adjoint (PRB);
 //! - [`sobol`]: the replayable Owen-scrambled Sobol sampler that path replay needs.
 //!
 //! Each sampler comes with the density it draws from; `tests/shade.rs` checks that the densities
@@ -16,6 +17,7 @@ pub mod brdf;
 pub mod envmap;
 pub mod estimator;
 pub mod render;
+pub mod replay;
 pub mod sobol;
 
 pub use brdf::{Material, Sample};

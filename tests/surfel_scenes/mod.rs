@@ -1,0 +1,110 @@
+//! Small surfel scenes for the shading tests (`tests/render.rs`, `tests/replay.rs`): a
+//! Fibonacci sphere, a floor, a camera, a random environment.
+#![allow(dead_code)] // each test crate uses some of these
+
+use glam::{Quat, Vec3};
+use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::{Camera, Component, Environment, Rigid, Scene, Surfels};
+use lightfuse::shade::Material;
+
+/// Fibonacci-sphere surfels of radius `r` about `c`: radial normals, σ = the mean spacing, so
+/// every point is covered by many discs and the sphere is opaque.
+pub fn sphere(c: Vec3, r: f32, n: usize, m: Material) -> Surfels {
+    let mut s = Surfels::with_sh_degree(0);
+    let spacing = (4.0 * std::f32::consts::PI * r * r / n as f32).sqrt();
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    for i in 0..n {
+        let y = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+        let rad = (1.0 - y * y).sqrt();
+        let phi = golden * i as f32;
+        let nrm = Vec3::new(rad * phi.cos(), y, rad * phi.sin());
+        let q = Quat::from_rotation_arc(Vec3::Z, nrm);
+        s.push(
+            (c + r * nrm).to_array(),
+            q.to_array(),
+            [spacing, spacing],
+            0.99,
+            &[[0.0; 3]],
+            m.base_color,
+            m.metallic,
+            m.roughness,
+        );
+    }
+    s
+}
+
+/// A square floor at height `y`, normal +Y, half-size `half`.
+pub fn floor(y: f32, half: f32, spacing: f32, m: Material) -> Surfels {
+    let mut s = Surfels::with_sh_degree(0);
+    let q = Quat::from_rotation_arc(Vec3::Z, Vec3::Y);
+    let k = (2.0 * half / spacing) as i32;
+    for i in 0..=k {
+        for j in 0..=k {
+            let p = [-half + i as f32 * spacing, y, -half + j as f32 * spacing];
+            s.push(
+                p,
+                q.to_array(),
+                [spacing, spacing],
+                0.99,
+                &[[0.0; 3]],
+                m.base_color,
+                m.metallic,
+                m.roughness,
+            );
+        }
+    }
+    s
+}
+
+pub fn scene_of(parts: Vec<Surfels>) -> Scene {
+    let mut scene = Scene::from_background(Surfels::with_sh_degree(0));
+    scene.components = parts
+        .into_iter()
+        .enumerate()
+        .map(|(i, surfels)| Component {
+            name: if i == 0 {
+                "background".into()
+            } else {
+                format!("obj{i}")
+            },
+            id: i as u32,
+            surfels,
+        })
+        .collect();
+    scene.states[0].transforms = vec![Rigid::IDENTITY; scene.components.len()];
+    scene
+}
+
+/// A camera at `eye` looking down −Z, `w`×`h`, focal length `fl` pixels.
+pub fn camera(eye: Vec3, w: u32, h: u32, fl: f32) -> Camera {
+    Camera {
+        transform_matrix: [
+            [1.0, 0.0, 0.0, eye.x],
+            [0.0, 1.0, 0.0, eye.y],
+            [0.0, 0.0, 1.0, eye.z],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+        fl_x: fl,
+        fl_y: fl,
+        cx: w as f32 / 2.0,
+        cy: h as f32 / 2.0,
+        w,
+        h,
+    }
+}
+
+pub fn random_env(w: usize, h: usize, seed: u64, scale: f32) -> Environment {
+    let mut rng = SplitMix(seed);
+    let px = (0..w * h)
+        .map(|_| [rng.f32(), rng.f32(), rng.f32()].map(|v| scale * (0.1 + 3.0 * v * v)))
+        .collect();
+    Environment::new("random", w, h, px)
+}
+
+pub fn mat(base: [f32; 3], metallic: f32, roughness: f32) -> Material {
+    Material {
+        base_color: base,
+        metallic,
+        roughness,
+    }
+}
