@@ -51,6 +51,43 @@ pub enum Command {
     /// no colour) over every training state; writes <work>/refined.glb and
     /// <work>/refine/{report.json, log.jsonl, checkpoint.json}.
     Refine(RefineArgs),
+    /// Stage 3: inverse rendering with path replay backpropagation: every surfel's base
+    /// colour, metallic and roughness and each training state's HDR environment, geometry and
+    /// poses fixed; writes <work>/relightable.{glb,usda} and
+    /// <work>/invert/{report.json, log.jsonl, checkpoint.json}.
+    Invert(InvertArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct InvertArgs {
+    /// Dataset (dataset.json or its folder) that stages 1 and 2 reconstructed.
+    pub dataset: PathBuf,
+    /// Work folder of stages 1-2 (holds refined.glb); relightable.* and invert/ are written there.
+    pub work: PathBuf,
+    /// The scene to invert, if not <work>/refined.glb.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// Settings: "fast" (minutes for the demo on a laptop) or "paper" (15,000 iterations of
+    /// 16,384 pixels, 8/16/32 spp).
+    #[arg(long, default_value = "fast")]
+    pub preset: String,
+    /// Iterations (default: the preset's); the stage boundaries stay where the preset puts them.
+    #[arg(long)]
+    pub iterations: Option<u32>,
+    /// How samples per pixel grow: "paper" (x1, x2 from half, x4 from 80%), "fixed8" (x1),
+    /// "max16" (x1, x2 from half) - the paper's Table 4.
+    #[arg(long, default_value = "paper")]
+    pub spp_schedule: String,
+    /// Evaluation: samples per pixel, and every N-th pixel in x and y of each view.
+    #[arg(long, default_value_t = 16)]
+    pub eval_spp: u32,
+    #[arg(long, default_value_t = 2)]
+    pub eval_stride: u32,
+    /// Continue from <work>/invert/checkpoint.json if it is there.
+    #[arg(long)]
+    pub resume: bool,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 #[derive(clap::Args, Debug)]
@@ -297,6 +334,7 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Bench(a) => bench::run(cli, a),
         Command::Reconstruct(a) => reconstruct(cli, a),
         Command::Refine(a) => refine(cli, a),
+        Command::Invert(a) => invert(cli, a),
     }
 }
 
@@ -635,6 +673,61 @@ fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
             100.0 * f.light_leaks,
             f.blocked_rays
         );
+    }
+    Ok(())
+}
+
+fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
+    use crate::stages::invert::{self, Settings, SppSchedule};
+    let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
+    if let Some(n) = a.iterations {
+        settings.iterations = n;
+    }
+    settings.seed = a.seed;
+    settings.spp_schedule = SppSchedule::parse(&a.spp_schedule).ok_or_else(|| {
+        Error::Usage(format!(
+            "--spp-schedule: expected \"paper\", \"fixed8\" or \"max16\", found {:?}",
+            a.spp_schedule
+        ))
+    })?;
+    if a.eval_spp == 0 || a.eval_stride == 0 {
+        return Err(Error::Usage(
+            "--eval-spp and --eval-stride: expected at least 1".into(),
+        ));
+    }
+    let report = invert::invert(&invert::Options {
+        dataset: a.dataset.clone(),
+        work: a.work.clone(),
+        scene: a.scene.clone(),
+        settings,
+        eval_spp: a.eval_spp,
+        eval_stride: a.eval_stride,
+        resume: a.resume,
+        quiet: cli.quiet || cli.json,
+    })?;
+    if cli.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&report).expect("report serialises")
+        );
+    } else if !cli.quiet {
+        eprintln!(
+            "wrote {} and .usda: {} surfels, {} iterations in {:.0} s",
+            a.work.join("relightable.glb").display(),
+            report.surfels,
+            report.iterations,
+            report.seconds
+        );
+        for s in &report.states {
+            eprintln!(
+                "  {}: training views {:.2} dB HDR / {:.2} dB sRGB; held-out {:.2} / {:.2} dB",
+                s.state,
+                s.training.psnr_hdr_db,
+                s.training.psnr_srgb_db,
+                s.heldout.psnr_hdr_db,
+                s.heldout.psnr_srgb_db
+            );
+        }
     }
     Ok(())
 }

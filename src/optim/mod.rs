@@ -22,6 +22,19 @@ pub use loss::{
 };
 pub use ssim::{d_ssim, ssim};
 
+/// The logistic function, the activation of every parameter kept in (0, 1) as a logit.
+#[inline]
+pub fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// The inverse of [`sigmoid`], clamped to [1e-4, 1 − 1e-4] so that 0 and 1 stay finite.
+#[inline]
+pub fn logit(a: f32) -> f32 {
+    let a = a.clamp(1e-4, 1.0 - 1e-4);
+    (a / (1.0 - a)).ln()
+}
+
 /// A loss value and its gradient with respect to one input buffer (same layout as the input).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Loss<G> {

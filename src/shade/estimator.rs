@@ -445,6 +445,9 @@ pub struct Pixel {
     pub normal: [f32; 3],
     /// Mean base colour; 0 without a hit.
     pub albedo: [f32; 3],
+    /// Mean metallic and roughness; 0 without a hit.
+    pub metallic: f32,
+    pub roughness: f32,
     /// Rays traced for this pixel.
     pub rays: u32,
 }
@@ -487,6 +490,8 @@ impl Estimator<'_> {
             px.depth = rec.mean_depth() * Vec3::from_array(d).dot(camera_forward(camera));
             px.normal = rec.unit_normal();
             px.albedo = rec.mean_base_color();
+            px.metallic = rec.mean_metallic();
+            px.roughness = rec.mean_roughness();
         }
         px
     }

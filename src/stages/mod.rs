@@ -1,5 +1,6 @@
 //! The paper's stages, each a plain function of files (DESIGN §4).
 
 pub mod common;
+pub mod invert;
 pub mod reconstruct;
 pub mod refine;

@@ -114,6 +114,32 @@ impl TraceScene {
         }
     }
 
+    /// Replaces every surfel's material by `components`' (the surfels this scene was built from,
+    /// same order and counts, geometry unchanged), keeping the BVHs: what inverse rendering
+    /// changes each iteration. Panics if the counts differ.
+    pub fn set_materials(&mut self, components: &[&Surfels]) {
+        assert_eq!(
+            components.len(),
+            self.blas.len(),
+            "set_materials: one Surfels per component"
+        );
+        for (b, s) in self.blas.iter_mut().zip(components) {
+            assert_eq!(
+                b.index.len(),
+                s.len(),
+                "set_materials: surfel count changed"
+            );
+            for (m, &i) in b.material.iter_mut().zip(&b.index) {
+                let i = i as usize;
+                *m = Material {
+                    base_color: s.base_color[i],
+                    metallic: s.metallic[i],
+                    roughness: s.roughness[i],
+                };
+            }
+        }
+    }
+
     pub fn component_count(&self) -> usize {
         self.blas.len()
     }

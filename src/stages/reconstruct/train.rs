@@ -16,7 +16,7 @@
 //! normal self-consistency (eqs. reconstruction-depth, reconstruction-normal).
 
 use crate::io::dataset::Observation;
-use crate::optim::{self, Adam, Schedule};
+use crate::optim::{self, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Component, Rigid, Surfels};
 use crate::splat::{self, ImageGrad, Placement};
@@ -153,15 +153,6 @@ const GROUPS: [(&str, usize); 4] = [
     ("log_scale", 2),
     ("logit_opacity", 1),
 ];
-
-fn logit(a: f32) -> f32 {
-    let a = a.clamp(1e-4, 1.0 - 1e-4);
-    (a / (1.0 - a)).ln()
-}
-
-fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
-}
 
 impl RawComponent {
     /// The component's parameters: its SH as the shared appearance, zero residuals for each of

@@ -59,14 +59,14 @@ pub struct Report {
     pub states: Vec<StateFigures>,
 }
 
-/// Stage 1's scene, checked against the dataset: the same objects (names and mask ids) and a
-/// state for every training state.
-fn read_stage1(path: &Path, dataset: &Dataset) -> Result<Scene> {
+/// An earlier stage's scene, checked against the dataset: the same objects (names and mask ids)
+/// and a state for every training state. `missing` says how to make it when the file is absent.
+pub(crate) fn read_stage_scene(path: &Path, dataset: &Dataset, missing: &str) -> Result<Scene> {
     if !path.is_file() {
         return Err(Error::invalid(
             path,
             "scene",
-            "expected stage 1's scene here: run `lightfuse reconstruct <dataset> -o <work>` first (or pass --scene)",
+            format!("expected an earlier stage's scene here: {missing}"),
         ));
     }
     let scene = crate::io::read_scene(path)?;
@@ -133,7 +133,9 @@ fn measure(
     let mut all = GeometryTally::default();
     let mut per = Vec::new();
     for (name, _, held, every) in states {
-        let state = &scene.states[scene.state_index(name).expect("checked by read_stage1")];
+        let state = &scene.states[scene
+            .state_index(name)
+            .expect("checked by read_stage_scene")];
         let placed = traced.place_state(state);
         let t = tally_state(&placed, held, every, ext, leaks);
         per.push(t.figures());
@@ -182,7 +184,11 @@ pub fn refine(opts: &Options) -> Result<Report> {
         .scene
         .clone()
         .unwrap_or_else(|| opts.work.join("scene.glb"));
-    let scene = read_stage1(&scene_path, &dataset)?;
+    let scene = read_stage_scene(
+        &scene_path,
+        &dataset,
+        "run `lightfuse reconstruct <dataset> -o <work>` first (or pass --scene)",
+    )?;
     let out_dir = opts.work.join("refine");
     std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
 
@@ -214,7 +220,7 @@ pub fn refine(opts: &Options) -> Result<Report> {
         .map(|(j, &k)| {
             let s = scene
                 .state_index(&dataset.states[k].name)
-                .expect("checked by read_stage1");
+                .expect("checked by read_stage_scene");
             TrainState {
                 views: train[j].iter().collect(),
                 transforms: scene.states[s].transforms.clone(),

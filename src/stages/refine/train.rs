@@ -24,7 +24,7 @@
 //! one each ([`Switches`]).
 
 use crate::io::dataset::Observation;
-use crate::optim::{self, Adam, Schedule};
+use crate::optim::{self, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Camera, Component, Rigid, Surfels};
 use crate::splat;
@@ -536,10 +536,6 @@ impl Refiner {
             }
         }
     }
-}
-
-fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
 }
 
 /// The losses of one patch (already divided by the batch's patch count) and dL/d(record sums)

@@ -1,0 +1,356 @@
+//! Stage 3 from files to files: `<work>/refined.glb` (stage 2; stage 1's `scene.glb` with a
+//! warning when stage 2 has not run) and the dataset's captures to `<work>/relightable.glb`,
+//! `<work>/relightable.usda` and `<work>/invert/{report.json, log.jsonl, checkpoint.json}`.
+
+use super::train::{initial_environment, Inverter, Losses, Settings, TrainState};
+use crate::error::{Error, Result};
+use crate::eval::metrics::psnr_srgb;
+use crate::io::dataset::{Dataset, Observation};
+use crate::io::AtomicFiles;
+use crate::scene::{EnvRef, Scene, Surfels};
+use crate::shade::envmap::EnvMap;
+use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
+use crate::stages::common::{read_checkpoint, say, write_checkpoint, Progress, StageLog};
+use crate::stages::reconstruct::run::split;
+use crate::stages::refine::run::read_stage_scene;
+use crate::trace::TraceScene;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Checkpoints are written this often (iterations), and at the end.
+const CHECKPOINT_EVERY: u32 = 50;
+/// log.jsonl gets the mean losses of each window of this many iterations.
+const LOG_EVERY: u32 = 10;
+
+pub struct Options {
+    pub dataset: PathBuf,
+    /// The work folder: stage 2's `refined.glb` is read from it unless `scene` says otherwise.
+    pub work: PathBuf,
+    pub scene: Option<PathBuf>,
+    pub settings: Settings,
+    /// Evaluation: samples per pixel, and every `eval_stride`-th pixel in x and y.
+    pub eval_spp: u32,
+    pub eval_stride: u32,
+    pub resume: bool,
+    pub quiet: bool,
+}
+
+/// Rendered against captured, over a set of views of one state.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct ImageFigures {
+    pub views: Vec<usize>,
+    pub pixels: usize,
+    /// PSNR of the scene-linear HDR images, peak = the captures' largest value over these
+    /// pixels (no clamping).
+    pub psnr_hdr_db: f64,
+    /// PSNR after clamping to [0, 1] and sRGB encoding.
+    pub psnr_srgb_db: f64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct StateReport {
+    pub state: String,
+    pub training: ImageFigures,
+    pub heldout: ImageFigures,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Report {
+    pub dataset: String,
+    pub scene: String,
+    pub settings: Settings,
+    pub eval_spp: u32,
+    pub eval_stride: u32,
+    pub iterations: u32,
+    pub seconds: f64,
+    pub surfels: usize,
+    pub states: Vec<StateReport>,
+}
+
+/// What a resumed run needs: the inverter (parameters, Adam, iteration, generator).
+#[derive(Serialize, Deserialize)]
+struct Checkpoint {
+    inverter: Inverter,
+}
+
+fn read_resumable(path: &Path, settings: &Settings, surfels: &[Surfels]) -> Result<Checkpoint> {
+    let mut c: Checkpoint = read_checkpoint(path)?;
+    let same = |s: &Settings| Settings {
+        iterations: 0,
+        ..s.clone()
+    };
+    if same(&c.inverter.settings) != same(settings) {
+        return Err(Error::invalid(
+            path,
+            "settings",
+            "the checkpoint was made with other settings: resume with the same preset, schedule and seed, or start afresh without --resume",
+        ));
+    }
+    let counts: Vec<usize> = c
+        .inverter
+        .materials
+        .iter()
+        .map(|m| m.metallic.len())
+        .collect();
+    let want: Vec<usize> = surfels.iter().map(|s| s.len()).collect();
+    if counts != want {
+        return Err(Error::invalid(
+            path,
+            "inverter.materials",
+            format!("expected materials for {want:?} surfels per component (the scene's), found {counts:?}: the checkpoint belongs to another scene"),
+        ));
+    }
+    c.inverter.adam.validate(path)?;
+    c.inverter.set_iterations(settings.iterations);
+    Ok(c)
+}
+
+/// The scene stage 3 starts from: `--scene`, else `<work>/refined.glb`, else stage 1's
+/// `<work>/scene.glb` with a warning.
+fn scene_path(opts: &Options) -> Result<PathBuf> {
+    if let Some(p) = &opts.scene {
+        return Ok(p.clone());
+    }
+    let refined = opts.work.join("refined.glb");
+    if refined.is_file() {
+        return Ok(refined);
+    }
+    let stage1 = opts.work.join("scene.glb");
+    if stage1.is_file() {
+        eprintln!(
+            "warning: {} is missing (stage 2 has not run): inverting stage 1's {} instead; its geometry was fitted for splatting, not for ray tracing",
+            refined.display(),
+            stage1.display()
+        );
+        return Ok(stage1);
+    }
+    Err(Error::invalid(
+        &refined,
+        "scene",
+        "expected stage 2's refined scene here: run `lightfuse reconstruct <dataset> -o <work>` and `lightfuse refine <dataset> <work>` first (or pass --scene)",
+    ))
+}
+
+/// PSNR with a stated peak over pairs of (rendered, captured) linear colours.
+fn psnr_peak(pairs: &[([f32; 3], [f32; 3])], peak: f64) -> f64 {
+    let se: f64 = pairs
+        .iter()
+        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>())
+        .sum();
+    let mse = se / (3 * pairs.len().max(1)) as f64;
+    10.0 * (peak * peak / mse).log10()
+}
+
+/// Renders every `stride`-th pixel of `views` and compares with the captures.
+fn image_figures(est: &Estimator, views: &[&Observation], spp: u32, stride: u32) -> ImageFigures {
+    let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
+    let mut pairs: Vec<([f32; 3], [f32; 3])> = Vec::new();
+    for o in views {
+        let cam = &o.camera;
+        let coords: Vec<(u32, u32)> = (0..cam.h)
+            .step_by(stride as usize)
+            .flat_map(|y| (0..cam.w).step_by(stride as usize).map(move |x| (x, y)))
+            .collect();
+        let rendered: Vec<[f32; 3]> = coords
+            .par_iter()
+            .with_min_len(16)
+            .map(|&(x, y)| est.pixel(cam, &filter, (x, y), spp, 0x5eed).rgb)
+            .collect();
+        for ((x, y), r) in coords.iter().zip(rendered) {
+            pairs.push((r, o.rgb[(y * cam.w + x) as usize]));
+        }
+    }
+    if pairs.is_empty() {
+        return ImageFigures::default();
+    }
+    let peak = pairs
+        .iter()
+        .flat_map(|(_, b)| b.iter().map(|&v| v as f64))
+        .fold(0.0, f64::max)
+        .max(1e-6);
+    let (a, b): (Vec<[f32; 3]>, Vec<[f32; 3]>) = pairs.iter().copied().unzip();
+    ImageFigures {
+        views: views.iter().map(|o| o.view).collect(),
+        pixels: pairs.len(),
+        psnr_hdr_db: psnr_peak(&pairs, peak),
+        psnr_srgb_db: psnr_srgb(&a, &b),
+    }
+}
+
+/// Stage 3: inverse rendering of materials and per-state environments (eq. training-objectives).
+pub fn invert(opts: &Options) -> Result<Report> {
+    let t0 = Instant::now();
+    let dataset = Dataset::read(&opts.dataset)?;
+    let scene_file = scene_path(opts)?;
+    let scene = read_stage_scene(
+        &scene_file,
+        &dataset,
+        "run `lightfuse reconstruct` and `lightfuse refine` first (or pass --scene)",
+    )?;
+    let out_dir = opts.work.join("invert");
+    std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
+
+    say(opts.quiet, "reading the training captures");
+    let train_states = dataset.train_states();
+    let (train, held) = split(dataset.training_observations()?);
+    let (w, h) = (
+        opts.settings.env_width as usize,
+        opts.settings.env_height as usize,
+    );
+    let mut loop_states: Vec<TrainState> = Vec::new();
+    let mut names = Vec::new();
+    for (j, &k) in train_states.iter().enumerate() {
+        let name = &dataset.states[k].name;
+        let s = scene
+            .state_index(name)
+            .expect("checked by read_stage_scene");
+        loop_states.push(TrainState {
+            views: train[j].iter().collect(),
+            transforms: scene.states[s].transforms.clone(),
+            eps: self_hit_epsilon(&scene, &scene.states[s]),
+        });
+        names.push(name.clone());
+    }
+    if loop_states.iter().all(|s| s.views.is_empty()) {
+        return Err(Error::invalid(
+            &dataset.file,
+            "states",
+            "expected training views to invert (view 0 of every 8 is held out)",
+        ));
+    }
+
+    let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
+    let ckpt = out_dir.join("checkpoint.json");
+    let log_path = out_dir.join("log.jsonl");
+    let resumed = opts.resume && ckpt.is_file();
+    let mut c = if resumed {
+        let c = read_resumable(&ckpt, &opts.settings, &surfels)?;
+        say(
+            opts.quiet,
+            &format!(
+                "resuming from {} at iteration {}",
+                ckpt.display(),
+                c.inverter.iteration
+            ),
+        );
+        c
+    } else {
+        say(
+            opts.quiet,
+            "initialising each state's environment from the pixels its views see it in",
+        );
+        let envs: Vec<_> = loop_states
+            .iter()
+            .map(|s| initial_environment(&s.views, w, h))
+            .collect();
+        let refs: Vec<&Surfels> = surfels.iter().collect();
+        Checkpoint {
+            inverter: Inverter::new(opts.settings.clone(), &refs, &envs),
+        }
+    };
+    let mut log = StageLog::create(&log_path, resumed)?;
+    let mut trace = TraceScene::from_components(&surfels.iter().collect::<Vec<_>>());
+
+    let total = opts.settings.iterations;
+    let mut bar = Progress::new(opts.quiet, total as u64, "inverting");
+    bar.start_at(c.inverter.iteration as u64);
+    let mut window = Losses::default();
+    let mut window_n = 0u32;
+    while c.inverter.iteration < total {
+        let l = c.inverter.step(&mut trace, &mut surfels, &loop_states);
+        window.l1 += l.l1;
+        window.tv += l.tv;
+        window.total += l.total;
+        window_n += 1;
+        bar.inc(1);
+        let it = c.inverter.iteration;
+        if it % LOG_EVERY == 0 || it == total {
+            let k = window_n.max(1) as f32;
+            log.write(&json!({
+                "iteration": it, "spp": l.spp, "l1": window.l1 / k, "tv": window.tv / k,
+                "total": window.total / k, "seconds": t0.elapsed().as_secs_f64(),
+            }))?;
+            bar.status(&format!("L1 {:.4} · {} spp", window.l1 / k, l.spp));
+            window = Losses::default();
+            window_n = 0;
+        }
+        if it % CHECKPOINT_EVERY == 0 || it == total {
+            write_checkpoint(&ckpt, &c)?;
+        }
+    }
+    bar.finish();
+
+    // The relightable scene: materials in the surfels, each training state lit by its
+    // recovered environment (world frame: rotation 0).
+    c.inverter.write_materials(&mut surfels);
+    let mut out = scene.clone();
+    for (comp, s) in out.components.iter_mut().zip(&surfels) {
+        comp.surfels = s.clone();
+    }
+    out.environments.clear();
+    for (j, name) in names.iter().enumerate() {
+        let env = c.inverter.environment(j, &format!("{name}-recovered"));
+        out.environments.push(env);
+        let s = out.state_index(name).expect("checked");
+        out.states[s].environment = Some(EnvRef {
+            index: out.environments.len() - 1,
+            rotation_deg: 0.0,
+        });
+    }
+    crate::io::write_scene(&out, &opts.work.join("relightable.glb"))?;
+    crate::io::write_scene(&out, &opts.work.join("relightable.usda"))?;
+
+    say(
+        opts.quiet,
+        "measuring: rendering the training and held-out views",
+    );
+    let report = Report {
+        dataset: dataset.file.display().to_string(),
+        scene: scene_file.display().to_string(),
+        settings: opts.settings.clone(),
+        eval_spp: opts.eval_spp,
+        eval_stride: opts.eval_stride,
+        iterations: c.inverter.iteration,
+        seconds: t0.elapsed().as_secs_f64(),
+        surfels: out.surfel_count(),
+        states: measure(&out, &names, &train, &held, opts),
+    };
+    let mut files = AtomicFiles::new();
+    files.write(
+        &out_dir.join("report.json"),
+        &serde_json::to_vec_pretty(&report).expect("report serialises"),
+    )?;
+    files.commit()?;
+    Ok(report)
+}
+
+fn measure(
+    scene: &Scene,
+    names: &[String],
+    train: &[Vec<Observation>],
+    held: &[Vec<Observation>],
+    opts: &Options,
+) -> Vec<StateReport> {
+    let trace = TraceScene::new(scene);
+    names
+        .iter()
+        .enumerate()
+        .map(|(j, name)| {
+            let state = &scene.states[scene.state_index(name).expect("checked")];
+            let placed = trace.place_state(state);
+            let env_ref = state.environment.expect("set above");
+            let map = EnvMap::new(&scene.environments[env_ref.index], env_ref.rotation_deg);
+            let est = Estimator::new(&placed, &map, self_hit_epsilon(scene, state));
+            let t: Vec<&Observation> = train[j].iter().collect();
+            let hd: Vec<&Observation> = held[j].iter().collect();
+            StateReport {
+                state: name.clone(),
+                training: image_figures(&est, &t, opts.eval_spp, opts.eval_stride),
+                heldout: image_figures(&est, &hd, opts.eval_spp, opts.eval_stride),
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,564 @@
+//! The stage-3 loop (eq. training-objectives): with the refined geometry and stage 1's object
+//! poses fixed, fit every surfel's base colour, metallic and roughness (shared by all states) and
+//! one HDR environment per training state to the captures, by differentiating the one-bounce
+//! path tracer that later relights the scene ([`crate::shade::replay`], path replay
+//! backpropagation).
+//!
+//! **One iteration.** One training image is drawn (state k, view v); `pixels` of its pixels are
+//! drawn with replacement; each is rendered with `spp` path samples of the Sobol stream of its
+//! pixel id under a per-iteration seed (the same filter-importance-sampled camera rays the
+//! renderer uses), giving L_p. The loss is L_IR = mean |L_p − I_p| over pixels and channels
+//! (L1 on scene-linear HDR) + λ_E TV(E_k) ([`crate::optim::env_tv`]). Its gradient
+//! sign(L_p − I_p)/(3N) is sent back by *replaying* each sample (no tape: the same sample is
+//! traced again, [`crate::shade::estimator::Estimator::replay`]) and taking its adjoint: into
+//! E_k's texels directly, into the records' mean materials and, through the compositing weights
+//! w_j ([`crate::trace::Placed::composite_backward`]), into each hit surfel's material.
+//!
+//! **Parameters** ([`Inverter`]): per surfel the logits of base colour, metallic and roughness
+//! (activated by a sigmoid, so they stay in (0, 1)); per training state ρ = ln E per texel and
+//! channel (E = exp ρ: positive, and Adam's relative steps suit a quantity spanning decades, as
+//! PTIR-GS's log-exp map). The environment's sampling distribution is rebuilt from the current
+//! E_k each iteration and held fixed within it (detached sampling, see the replay module).
+//!
+//! **Schedule** (paper § Experimental setup): lighting only before `lighting_until`, then base
+//! colour too before `base_color_until`, then everything; spp from `spp` doubling at half the
+//! iterations and again at 80 % ([`SppSchedule::Paper`], the paper's 8/16/32 at 7,500 and
+//! 12,000 of 15,000), or fixed, or capped at twice the start (Table 4's `fixed8`, `max16`).
+
+use crate::io::dataset::Observation;
+use crate::optim::{env_tv, logit, sigmoid, Adam, Schedule};
+use crate::scene::synthetic::SplitMix;
+use crate::scene::{Environment, Rigid, Surfels};
+use crate::shade::envmap::{direction_to_uv, EnvMap};
+use crate::shade::estimator::{Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
+use crate::shade::Sampler;
+use crate::trace::{RecordGrad, TraceRay, TraceScene};
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// How the samples per pixel grow over the run (the paper's Table 4 compares these).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SppSchedule {
+    /// `spp`, 2·spp from half the iterations, 4·spp from 80 % (paper: 8, 16 at 7,500, 32 at
+    /// 12,000 of 15,000).
+    Paper,
+    /// `spp` throughout (paper: 8).
+    Fixed8,
+    /// `spp`, 2·spp from half the iterations (paper: 8, then 16).
+    Max16,
+}
+
+impl SppSchedule {
+    pub fn parse(s: &str) -> Option<SppSchedule> {
+        match s {
+            "paper" => Some(SppSchedule::Paper),
+            "fixed8" => Some(SppSchedule::Fixed8),
+            "max16" => Some(SppSchedule::Max16),
+            _ => None,
+        }
+    }
+}
+
+/// Everything the loop's behaviour depends on; presets below. Saved in the checkpoint and the
+/// report.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    pub iterations: u32,
+    /// Pixels per iteration, all from one image.
+    pub pixels: u32,
+    /// Lighting only before this iteration.
+    pub lighting_until: u32,
+    /// Lighting and base colour before this iteration; everything after.
+    pub base_color_until: u32,
+    /// Samples per pixel at the start, and how they grow.
+    pub spp: u32,
+    pub spp_schedule: SppSchedule,
+    pub env_width: u32,
+    pub env_height: u32,
+    /// Adam learning rates: on ln E, and on the logits of the materials.
+    pub lr_env: f32,
+    pub lr_base_color: f32,
+    pub lr_metallic: f32,
+    pub lr_roughness: f32,
+    /// λ_E of eq. training-objectives.
+    pub lambda_tv: f32,
+    /// Initial material (activated values).
+    pub init_base_color: f32,
+    pub init_metallic: f32,
+    pub init_roughness: f32,
+    pub seed: u64,
+}
+
+impl Settings {
+    /// The paper's schedule (§ Experimental setup): 15,000 iterations of 16,384 pixels from one
+    /// image, lighting only to 2,000, + base colour to 9,000, 8 → 16 → 32 spp.
+    pub fn paper() -> Settings {
+        Settings {
+            iterations: 15_000,
+            pixels: 16_384,
+            lighting_until: 2_000,
+            base_color_until: 9_000,
+            spp: 8,
+            spp_schedule: SppSchedule::Paper,
+            env_width: 256,
+            env_height: 128,
+            lr_env: 0.03,
+            lr_base_color: 0.05,
+            lr_metallic: 0.03,
+            lr_roughness: 0.03,
+            lambda_tv: 0.01,
+            init_base_color: 0.5,
+            init_metallic: 0.02,
+            init_roughness: 0.7,
+            seed: 0,
+        }
+    }
+
+    /// The paper's stage fractions scaled to minutes on this 2-core machine for the demo: 600
+    /// iterations of 4,096 pixels at 2 → 4 → 8 spp (lighting only to 80, + base colour to
+    /// 360), with learning rates raised for the shorter run.
+    pub fn fast() -> Settings {
+        Settings {
+            iterations: 600,
+            pixels: 4_096,
+            lighting_until: 80,
+            base_color_until: 360,
+            spp: 2,
+            lr_env: 0.05,
+            lr_base_color: 0.08,
+            lr_metallic: 0.05,
+            lr_roughness: 0.05,
+            ..Settings::paper()
+        }
+    }
+
+    /// Samples per pixel at iteration `it`.
+    pub fn spp_at(&self, it: u32) -> u32 {
+        let half = it as u64 * 2 >= self.iterations as u64;
+        let late = it as u64 * 5 >= self.iterations as u64 * 4;
+        let k = match self.spp_schedule {
+            SppSchedule::Fixed8 => 1,
+            SppSchedule::Max16 => 1 + half as u32,
+            SppSchedule::Paper => {
+                if late {
+                    4
+                } else if half {
+                    2
+                } else {
+                    1
+                }
+            }
+        };
+        self.spp * k
+    }
+}
+
+/// Material logits of one component, surfel-major.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MaterialParams {
+    pub base_color: Vec<f32>,
+    pub metallic: Vec<f32>,
+    pub roughness: Vec<f32>,
+}
+
+impl MaterialParams {
+    fn len(&self) -> usize {
+        self.metallic.len()
+    }
+}
+
+/// The losses of one iteration.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
+pub struct Losses {
+    pub l1: f32,
+    pub tv: f32,
+    pub total: f32,
+    pub spp: u32,
+}
+
+/// One training state as the loop sees it: its captures and where every component stands.
+pub struct TrainState<'a> {
+    pub views: Vec<&'a Observation>,
+    pub transforms: Vec<Rigid>,
+    /// Secondary-ray offset ([`crate::shade::estimator::self_hit_epsilon`]).
+    pub eps: f32,
+}
+
+/// Inverse rendering's parameters, Adam, and where the run stands.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Inverter {
+    pub settings: Settings,
+    pub materials: Vec<MaterialParams>,
+    /// Per training state: ln E, texel-major (row 0 = top), 3 per texel.
+    pub envs: Vec<Vec<f32>>,
+    pub adam: Adam,
+    pub iteration: u32,
+    rng: u64,
+}
+
+/// Rays per parallel work item of the adjoint: fixed, so the scatter order (and the result)
+/// does not depend on the thread count.
+const PIXEL_CHUNK: usize = 32;
+
+impl Inverter {
+    /// Starts from the settings' initial material on every surfel and the given environments
+    /// (one per training state, `env_width × env_height`, e.g. [`initial_environment`]).
+    pub fn new(settings: Settings, components: &[&Surfels], envs: &[Environment]) -> Inverter {
+        let mut adam = Adam::new();
+        let materials: Vec<MaterialParams> = components
+            .iter()
+            .enumerate()
+            .map(|(c, s)| {
+                let n = s.len();
+                adam.add_group(
+                    &format!("{c}/base_color"),
+                    3 * n,
+                    3,
+                    Schedule::Constant {
+                        lr: settings.lr_base_color,
+                    },
+                );
+                adam.add_group(
+                    &format!("{c}/metallic"),
+                    n,
+                    1,
+                    Schedule::Constant {
+                        lr: settings.lr_metallic,
+                    },
+                );
+                adam.add_group(
+                    &format!("{c}/roughness"),
+                    n,
+                    1,
+                    Schedule::Constant {
+                        lr: settings.lr_roughness,
+                    },
+                );
+                MaterialParams {
+                    base_color: vec![logit(settings.init_base_color); 3 * n],
+                    metallic: vec![logit(settings.init_metallic); n],
+                    roughness: vec![logit(settings.init_roughness); n],
+                }
+            })
+            .collect();
+        let envs: Vec<Vec<f32>> = envs
+            .iter()
+            .enumerate()
+            .map(|(k, e)| {
+                adam.add_group(
+                    &format!("env{k}"),
+                    3 * e.pixels.len(),
+                    3,
+                    Schedule::Constant {
+                        lr: settings.lr_env,
+                    },
+                );
+                e.pixels
+                    .iter()
+                    .flat_map(|p| p.map(|v| v.max(1e-6).ln()))
+                    .collect()
+            })
+            .collect();
+        Inverter {
+            rng: settings.seed ^ 0x1f3e_5d7c_9b2a_4860,
+            settings,
+            materials,
+            envs,
+            adam,
+            iteration: 0,
+        }
+    }
+
+    /// Extends (or shortens) the run, e.g. when resuming with more iterations.
+    pub fn set_iterations(&mut self, iterations: u32) {
+        self.settings.iterations = iterations;
+    }
+
+    /// Writes the activated materials into `surfels` (the components, same order and counts).
+    pub fn write_materials(&self, surfels: &mut [Surfels]) {
+        for (s, m) in surfels.iter_mut().zip(&self.materials) {
+            for i in 0..m.len() {
+                s.base_color[i] = [0, 1, 2].map(|c| sigmoid(m.base_color[3 * i + c]));
+                s.metallic[i] = sigmoid(m.metallic[i]);
+                s.roughness[i] = sigmoid(m.roughness[i]);
+            }
+        }
+    }
+
+    /// Training state k's environment E = exp ρ.
+    pub fn environment(&self, k: usize, name: &str) -> Environment {
+        let px = self.envs[k]
+            .chunks_exact(3)
+            .map(|p| [p[0].exp(), p[1].exp(), p[2].exp()])
+            .collect();
+        Environment::new(
+            name,
+            self.settings.env_width as usize,
+            self.settings.env_height as usize,
+            px,
+        )
+    }
+
+    fn next(&mut self) -> u64 {
+        let mut r = SplitMix(self.rng);
+        let v = r.next_u64();
+        self.rng = r.0;
+        v
+    }
+
+    /// One iteration. `trace` holds the fixed geometry and `surfels` the same components (for
+    /// the backward pass); both get this iteration's materials.
+    pub fn step(
+        &mut self,
+        trace: &mut TraceScene,
+        surfels: &mut [Surfels],
+        states: &[TrainState],
+    ) -> Losses {
+        let s = self.settings.clone();
+        let it = self.iteration;
+        let spp = s.spp_at(it);
+        let images: Vec<(usize, usize)> = states
+            .iter()
+            .enumerate()
+            .flat_map(|(k, st)| (0..st.views.len()).map(move |v| (k, v)))
+            .collect();
+        assert!(!images.is_empty(), "stage 3 needs training views");
+        let (k, v) = images[(self.next() % images.len() as u64) as usize];
+        let obs = states[k].views[v];
+        let cam = &obs.camera;
+        let npix = (cam.w * cam.h) as u64;
+        let pixels: Vec<u32> = (0..s.pixels).map(|_| (self.next() % npix) as u32).collect();
+        let seed = (self.next() & 0xffff_ffff) as u32;
+
+        self.write_materials(surfels);
+        let refs: Vec<&Surfels> = surfels.iter().collect();
+        trace.set_materials(&refs);
+        let placed = trace.place(&states[k].transforms);
+        let env = self.environment(k, "");
+        let map = EnvMap::new(&env, 0.0);
+        let est = Estimator::new(&placed, &map, states[k].eps);
+        let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
+        let ray_of = |p: u32, i: u32, sampler: &Sampler| {
+            let (x, y) = (p % cam.w, p / cam.w);
+            let [ux, uy] = sampler.get_2d(i, crate::shade::estimator::dim::PIXEL);
+            cam.ray(
+                x as f32 + 0.5 + filter.offset(ux),
+                y as f32 + 0.5 + filter.offset(uy),
+            )
+        };
+
+        // Forward: each pixel's estimate.
+        let rendered: Vec<[f32; 3]> = pixels
+            .par_iter()
+            .with_min_len(8)
+            .map(|&p| {
+                let sampler = Sampler::new(p, seed);
+                let mut acc = [0.0f32; 3];
+                for i in 0..spp {
+                    let (o, d) = ray_of(p, i, &sampler);
+                    let r = est.radiance(o, d, &sampler, i).radiance;
+                    for c in 0..3 {
+                        acc[c] += r[c];
+                    }
+                }
+                acc.map(|a| a / spp as f32)
+            })
+            .collect();
+        let n = pixels.len().max(1) as f64;
+        let mut l1 = 0.0f64;
+        let ybar: Vec<[f32; 3]> = pixels
+            .iter()
+            .zip(&rendered)
+            .map(|(&p, r)| {
+                let t = obs.rgb[p as usize];
+                [0, 1, 2].map(|c| {
+                    let d = r[c] - t[c];
+                    l1 += d.abs() as f64;
+                    (d.signum() as f64 / (3.0 * n * spp as f64)) as f32
+                })
+            })
+            .collect();
+        let l1 = (l1 / (3.0 * n)) as f32;
+
+        // Adjoint: replay every sample (path replay; nothing was kept from the forward pass).
+        let materials_on = it >= s.lighting_until;
+        struct ChunkOut {
+            texels: Vec<(u32, [f32; 3])>,
+            rays: Vec<TraceRay>,
+            grads: Vec<RecordGrad>,
+        }
+        let chunks: Vec<ChunkOut> = pixels
+            .par_chunks(PIXEL_CHUNK)
+            .zip(ybar.par_chunks(PIXEL_CHUNK))
+            .map(|(ps, ys)| {
+                let mut out = ChunkOut {
+                    texels: Vec::new(),
+                    rays: Vec::new(),
+                    grads: Vec::new(),
+                };
+                for (&p, &yb) in ps.iter().zip(ys) {
+                    let sampler = Sampler::new(p, seed);
+                    for i in 0..spp {
+                        let (o, d) = ray_of(p, i, &sampler);
+                        let path = est.replay(o, d, &sampler, i);
+                        let mg = path.adjoint(&map, yb, |t, g| out.texels.push((t as u32, g)));
+                        if materials_on {
+                            for (ray, g) in path.record_grads(&mg).into_iter().flatten() {
+                                out.rays.push(ray);
+                                out.grads.push(g);
+                            }
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let texels = env.pixels.len();
+        let mut d_env = vec![[0.0f32; 3]; texels];
+        let mut rays = Vec::new();
+        let mut grads = Vec::new();
+        for c in chunks {
+            for (t, g) in c.texels {
+                for ch in 0..3 {
+                    d_env[t as usize][ch] += g[ch];
+                }
+            }
+            rays.extend(c.rays);
+            grads.extend(c.grads);
+        }
+        let tv = env_tv(&env.pixels, env.width, env.height);
+        // E = exp ρ: dL/dρ = dL/dE · E.
+        let d_rho: Vec<f32> = (0..texels)
+            .flat_map(|t| {
+                let e = env.pixels[t];
+                let (g, gt) = (d_env[t], tv.grad[t]);
+                [0, 1, 2].map(|c| (g[c] + s.lambda_tv * gt[c]) * e[c])
+            })
+            .collect();
+        let g_env = self
+            .adam
+            .group_index(&format!("env{k}"))
+            .expect("one group per state");
+        self.adam.step(g_env, &mut self.envs[k], &d_rho);
+
+        if materials_on && !rays.is_empty() {
+            let grads_s = placed.composite_backward(&refs, &rays, &grads, false);
+            let all = it >= s.base_color_until;
+            for (c, (m, g)) in self.materials.iter_mut().zip(&grads_s.surfels).enumerate() {
+                // d/dlogit = d/dvalue · σ(1 − σ).
+                let dsig = |x: f32| {
+                    let y = sigmoid(x);
+                    y * (1.0 - y)
+                };
+                let d_bc: Vec<f32> = (0..m.len())
+                    .flat_map(|i| {
+                        let b = &m.base_color;
+                        [0, 1, 2].map(|ch| g.base_color[i][ch] * dsig(b[3 * i + ch]))
+                    })
+                    .collect();
+                let gi = self
+                    .adam
+                    .group_index(&format!("{c}/base_color"))
+                    .expect("group");
+                self.adam.step(gi, &mut m.base_color, &d_bc);
+                if all {
+                    let d_m: Vec<f32> = (0..m.len())
+                        .map(|i| g.metallic[i] * dsig(m.metallic[i]))
+                        .collect();
+                    let d_r: Vec<f32> = (0..m.len())
+                        .map(|i| g.roughness[i] * dsig(m.roughness[i]))
+                        .collect();
+                    let gm = self
+                        .adam
+                        .group_index(&format!("{c}/metallic"))
+                        .expect("group");
+                    self.adam.step(gm, &mut m.metallic, &d_m);
+                    let gr = self
+                        .adam
+                        .group_index(&format!("{c}/roughness"))
+                        .expect("group");
+                    self.adam.step(gr, &mut m.roughness, &d_r);
+                }
+            }
+        }
+        self.iteration += 1;
+        let tvv = s.lambda_tv * tv.value;
+        Losses {
+            l1,
+            tv: tvv,
+            total: l1 + tvv,
+            spp,
+        }
+    }
+}
+
+/// An environment for one training state from what its views show and nothing else: every
+/// pixel whose capture saw no surface (depth 0) looks at the environment, so its colour is put
+/// into the texel its centre ray reads (world frame, no rotation) and texels average what they
+/// got. Texels no view saw take the mean of their row's seen texels, rows with none the nearest
+/// such row's, and a state whose views see no sky at all a grey of the captures' mean colour.
+pub fn initial_environment(views: &[&Observation], width: usize, height: usize) -> Environment {
+    let mut sum = vec![[0.0f64; 3]; width * height];
+    let mut count = vec![0u32; width * height];
+    let (mut all, mut all_n) = ([0.0f64; 3], 0u64);
+    for o in views {
+        let cam = &o.camera;
+        for y in 0..cam.h {
+            for x in 0..cam.w {
+                let i = (y * cam.w + x) as usize;
+                let rgb = o.rgb[i];
+                for c in 0..3 {
+                    all[c] += rgb[c] as f64;
+                }
+                all_n += 1;
+                if o.depth[i] > 0.0 {
+                    continue;
+                }
+                let (_, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+                let [u, t] = direction_to_uv(Vec3::from_array(d));
+                let tx = ((u * width as f32).floor() as i64).rem_euclid(width as i64) as usize;
+                let ty = ((t * height as f32) as usize).min(height - 1);
+                let j = ty * width + tx;
+                for c in 0..3 {
+                    sum[j][c] += rgb[c].max(0.0) as f64;
+                }
+                count[j] += 1;
+            }
+        }
+    }
+    let mean_all = all.map(|v| (v / all_n.max(1) as f64).max(1e-3));
+    let rows: Vec<Option<[f64; 3]>> = (0..height)
+        .map(|y| {
+            let (mut s, mut n) = ([0.0f64; 3], 0u32);
+            for x in 0..width {
+                let j = y * width + x;
+                if count[j] > 0 {
+                    for c in 0..3 {
+                        s[c] += sum[j][c] / count[j] as f64;
+                    }
+                    n += 1;
+                }
+            }
+            (n > 0).then(|| s.map(|v| v / n as f64))
+        })
+        .collect();
+    let seen: Vec<usize> = (0..height).filter(|&y| rows[y].is_some()).collect();
+    let px = (0..width * height)
+        .map(|j| {
+            let y = j / width;
+            let v = if count[j] > 0 {
+                sum[j].map(|v| v / count[j] as f64)
+            } else if let Some(r) = rows[y] {
+                r
+            } else if let Some(&near) = seen.iter().min_by_key(|&&r| r.abs_diff(y)) {
+                rows[near].expect("seen row")
+            } else {
+                mean_all
+            };
+            v.map(|x| (x as f32).max(1e-4))
+        })
+        .collect();
+    Environment::new("initial", width, height, px)
+}
