@@ -24,7 +24,8 @@ Cycles used, with World rotation 0 and strength 1 (``environment_source`` record
 HDRI, the rotation about +Y in degrees and the scale that produced it).  Also for evaluation only, each
 object records ``reference_pose`` (its own frame, origin at its base centre, in state0's Y-up
 world) and ``symmetries`` (rotations that leave it looking the same; ``scenes.SYMMETRIES``), so
-pose errors can forgive what no image can tell apart.
+pose errors can forgive what no image can tell apart, and ``material`` (``metallic`` and
+``roughness``: its Principled BSDF inputs, area-weighted over its faces when its parts differ).
 
 The scene is saved as ``scene.blend`` (objects at the reference state 0, a ``lightfuse`` record
 with object ids and reference matrices), so ``render_layout.py`` can render any other layout.
@@ -190,6 +191,20 @@ def make_cameras(rng: random.Random, n: int, size: float, w: int, h: int, lens: 
     return mats
 
 
+def object_material(ob) -> dict:
+    """Ground truth for evaluation: the Principled BSDF Metallic and Roughness inputs of the
+    object's material slots, area-weighted over its faces (one slot: that slot's values)."""
+    acc = np.zeros(2)
+    total = 0.0
+    for poly in ob.data.polygons:
+        mat = ob.material_slots[poly.material_index].material
+        bsdf = mat.node_tree.nodes["Principled BSDF"]
+        acc += poly.area * np.array([bsdf.inputs["Metallic"].default_value, bsdf.inputs["Roughness"].default_value])
+        total += poly.area
+    m, r = acc / max(total, 1e-12)
+    return {"metallic": round(float(m), 6), "roughness": round(float(r), 6)}
+
+
 def frame_paths(prefix: str, geo_prefix: str, i: int) -> dict:
     return {"file_path": f"{prefix}/rgb/{i:03d}.exr",
             "depth_file_path": f"{geo_prefix}/depth/{i:03d}.exr",
@@ -227,8 +242,8 @@ def _run(a, out: str, final: str, t0: float) -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     desc = scenes.build_scene(a.preset)
     movables = desc["movables"]
-    objects = [{"id": i + 1, "name": name, "symmetries": desc["symmetries"][name]}
-               for i, (name, *_rest) in enumerate(movables)]
+    objects = [{"id": i + 1, "name": name, "symmetries": desc["symmetries"][name], "material": object_material(ob)}
+               for i, (name, ob, *_rest) in enumerate(movables)]
     for i, (name, ob, *_r) in enumerate(movables):
         ob.pass_index = i + 1
         ob["lightfuse_id"] = i + 1

@@ -189,3 +189,105 @@ fn masks_frames_and_objects_must_agree() {
     bad["states"][0]["frames"][0]["mask_path"] = json!("empty.png");
     fails(dir.path(), &bad, &["objects", "cup", "no training view"]);
 }
+
+/// Ground truth for evaluation (never training): the albedo pass, the state's environment and
+/// the objects' recorded materials.
+#[test]
+fn ground_truth_albedo_environment_and_materials_read_for_evaluation() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = dataset(dir.path());
+    exr(
+        &dir.path().join("albedo.exr"),
+        &["R", "G", "B"],
+        W,
+        H,
+        |i, c| {
+            if i == 5 {
+                [0.8, 0.4, 0.1][c]
+            } else {
+                0.0
+            }
+        },
+    );
+    let env = lightfuse::scene::Environment::new(
+        "x",
+        4,
+        2,
+        (0..8).map(|i| [i as f32, -1.0, 0.5]).collect(),
+    );
+    std::fs::create_dir(dir.path().join("env")).unwrap();
+    lightfuse::io::exr::write_environment(&env, &dir.path().join("env/state0.exr")).unwrap();
+    v["states"][0]["frames"][0]["albedo_file_path"] = json!("albedo.exr");
+    v["states"][0]["environment"] = json!("env/state0.exr");
+    v["states"][0]["environment_source"] =
+        json!({"name": "sky", "rotation_deg": 90.0, "scale": 2.0});
+    v["objects"][0]["material"] = json!({"metallic": 1.0, "roughness": 0.25});
+    let p = dir.path().join("dataset.json");
+    std::fs::write(&p, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+    let d = Dataset::read(&p).unwrap();
+
+    let albedo = d
+        .albedo(0, 0)
+        .unwrap()
+        .expect("the frame names an albedo pass");
+    assert_eq!(albedo.len(), 12);
+    assert_eq!(albedo[5], [0.8, 0.4, 0.1]);
+    assert_eq!(albedo[0], [0.0; 3]);
+    let e = d
+        .environment(0)
+        .unwrap()
+        .expect("the state names its environment");
+    assert_eq!((e.name.as_str(), e.width, e.height), ("state0", 4, 2));
+    assert_eq!(e.pixels[3], [3.0, 0.0, 0.5], "negative texels are set to 0");
+    let src = d.states[0].environment_source.as_ref().unwrap();
+    assert_eq!(src.rotation_deg, Some(90.0));
+    let m = d.objects[0].material.unwrap();
+    assert_eq!((m.metallic, m.roughness), (1.0, 0.25));
+
+    // Old datasets: no albedo, no environment, no material.
+    let plain = dataset(dir.path());
+    std::fs::write(&p, serde_json::to_vec_pretty(&plain).unwrap()).unwrap();
+    let d = Dataset::read(&p).unwrap();
+    assert!(d.albedo(0, 0).unwrap().is_none());
+    assert!(d.environment(0).unwrap().is_none());
+    assert!(d.objects[0].material.is_none());
+
+    // A named but missing albedo pass, or one of the wrong size, is a user error naming it.
+    let mut bad = v.clone();
+    bad["states"][0]["frames"][0]["albedo_file_path"] = json!("gone/albedo.exr");
+    std::fs::write(&p, serde_json::to_vec_pretty(&bad).unwrap()).unwrap();
+    let e = Dataset::read(&p).unwrap().albedo(0, 0).unwrap_err();
+    assert!(
+        e.is_user_error() && e.to_string().contains("gone/albedo.exr"),
+        "{e}"
+    );
+    exr(
+        &dir.path().join("small.exr"),
+        &["R", "G", "B"],
+        2,
+        2,
+        |_, _| 0.5,
+    );
+    bad["states"][0]["frames"][0]["albedo_file_path"] = json!("small.exr");
+    std::fs::write(&p, serde_json::to_vec_pretty(&bad).unwrap()).unwrap();
+    let e = Dataset::read(&p).unwrap().albedo(0, 0).unwrap_err();
+    assert!(
+        e.to_string().contains("small.exr") && e.to_string().contains("size"),
+        "{e}"
+    );
+    let mut bad = v.clone();
+    bad["states"][0]["environment"] = json!("env/nowhere.exr");
+    std::fs::write(&p, serde_json::to_vec_pretty(&bad).unwrap()).unwrap();
+    let e = Dataset::read(&p).unwrap().environment(0).unwrap_err();
+    assert!(
+        e.is_user_error() && e.to_string().contains("nowhere.exr"),
+        "{e}"
+    );
+    let mut bad = v.clone();
+    bad["objects"][0]["material"]["roughness"] = json!(1.5);
+    fails(
+        dir.path(),
+        &bad,
+        &["objects[0].material.roughness", "[0, 1]"],
+    );
+}

@@ -28,6 +28,8 @@ def test_tiny_dataset_is_fast_and_valid(tiny_dataset, schema):
     test_envs = {r["environment_source"]["name"] for r in test[0]["relight"]}
     assert not train_envs & test_envs, "test environments must not be used in training"
     assert 3 <= len(ds["objects"]) <= 5
+    for o in ds["objects"]:  # ground-truth material, evaluation only
+        assert 0 <= o["material"]["metallic"] <= 1 and 0 <= o["material"]["roughness"] <= 1, o
     root = tiny_dataset["path"]
     for st in ds["states"]:
         runs = st.get("relight", []) + ([st] if "frames" in st else [])

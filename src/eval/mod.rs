@@ -1,6 +1,8 @@
-//! Evaluation against ground truth: image and depth metrics, symmetry-aware object pose error.
+//! Evaluation against ground truth: image and depth metrics, symmetry-aware object pose error,
+//! stage 3's lighting and material figures.
 
 pub mod geometry;
+pub mod lighting;
 pub mod metrics;
 pub mod pose;
 pub mod report;

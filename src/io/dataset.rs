@@ -5,7 +5,7 @@
 use crate::error::{Error, Result};
 use crate::scene::{Camera, Rigid};
 use rayon::prelude::*;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -24,6 +24,31 @@ pub struct DatasetObject {
     /// (in its frame), so a pose error forgives them ([`crate::eval::pose`]).
     #[serde(default)]
     pub symmetries: Vec<crate::eval::pose::Symmetry>,
+    /// Ground truth, evaluation only: one representative metallic / roughness for the object
+    /// ([`ObjectMaterial`]). Absent in datasets written before generate.py recorded it.
+    #[serde(default)]
+    pub material: Option<ObjectMaterial>,
+}
+
+/// Ground truth, evaluation only: an object's Principled BSDF Metallic and Roughness inputs,
+/// area-weighted over its faces when its material slots differ (blender/generate.py). Both in
+/// [0, 1].
+#[derive(Serialize, Deserialize, Debug, Clone, Copy, PartialEq)]
+pub struct ObjectMaterial {
+    pub metallic: f64,
+    pub roughness: f64,
+}
+
+/// Ground truth provenance of an environment file: the source HDRI, and the rotation about +Y
+/// (degrees) and the scale that were *already applied* to the file. Do not apply them again.
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+pub struct EnvironmentSource {
+    #[serde(default)]
+    pub name: Option<String>,
+    #[serde(default)]
+    pub rotation_deg: Option<f64>,
+    #[serde(default)]
+    pub scale: Option<f64>,
 }
 
 #[derive(Deserialize, Debug, Clone)]
@@ -39,6 +64,10 @@ pub struct Frame {
     /// 8-bit object-id PNG (0 = background, otherwise a `DatasetObject::id`).
     #[serde(default)]
     pub mask_path: Option<String>,
+    /// Ground truth, evaluation only: base colour EXR (R, G, B = the Principled base colour,
+    /// scene-linear; 0 = no hit). Training never reads it ([`Dataset::albedo`]).
+    #[serde(default)]
+    pub albedo_file_path: Option<String>,
     #[serde(flatten)]
     pub camera: Camera,
 }
@@ -54,8 +83,12 @@ pub struct Relight {
 pub struct DatasetState {
     pub name: String,
     pub split: String,
-    /// Ground truth: the environment that lit this state.
+    /// Ground truth: the environment that lit this state, relative to the dataset root
+    /// ([`Dataset::environment`]).
     pub environment: Option<String>,
+    /// Ground truth provenance of `environment` (already applied to the file).
+    #[serde(default)]
+    pub environment_source: Option<EnvironmentSource>,
     /// Ground truth: each object's rigid transform relative to the reference state (rows).
     #[serde(default)]
     pub object_poses: BTreeMap<String, [[f32; 4]; 4]>,
@@ -150,6 +183,17 @@ impl Dataset {
                     ));
                 }
             }
+            if let Some(m) = o.material {
+                for (name, v) in [("metallic", m.metallic), ("roughness", m.roughness)] {
+                    if !(0.0..=1.0).contains(&v) {
+                        return Err(Error::invalid(
+                            &d.file,
+                            format!("{field}.material.{name}"),
+                            format!("expected a value in [0, 1], found {v}"),
+                        ));
+                    }
+                }
+            }
             if let Some(j) = d.objects[..i]
                 .iter()
                 .position(|p| p.id == o.id || p.name == o.name)
@@ -219,6 +263,40 @@ impl Dataset {
 
     pub fn path(&self, relative: &str) -> PathBuf {
         self.root.join(relative)
+    }
+
+    /// Ground truth, evaluation only: the albedo pass of frame `v` of state `k` (its `frames`,
+    /// not its `relight` runs), row-major `w * h` base colours, 0 where nothing was hit; None
+    /// when the frame names no albedo file. Errors name the file (missing, not an EXR with R,
+    /// G, B, or not its camera's size).
+    pub fn albedo(&self, k: usize, v: usize) -> Result<Option<Vec<[f32; 3]>>> {
+        let frame = &self.states[k].frames[v];
+        let Some(rel) = frame.albedo_file_path.as_deref() else {
+            return Ok(None);
+        };
+        let p = read_planes(&self.path(rel), &["R", "G", "B"], &frame.camera)?;
+        Ok(Some(
+            (0..p[0].len())
+                .map(|i| [p[0][i], p[1][i], p[2][i]])
+                .collect(),
+        ))
+    }
+
+    /// Ground truth, evaluation only: the environment that lit state `k`, read from its
+    /// `environment` EXR (named after the state, negative texels set to 0 as for any scene
+    /// environment, [`Environment::clamp_negative`]); None when the state records none.
+    /// generate.py writes the map already rotated and scaled as Cycles used it (World rotation
+    /// 0, strength 1; `environment_source` only records what was applied), so it is in the
+    /// frame LightFuse maps environments in and needs no rotation.
+    ///
+    /// [`Environment::clamp_negative`]: crate::scene::Environment::clamp_negative
+    pub fn environment(&self, k: usize) -> Result<Option<crate::scene::Environment>> {
+        let Some(rel) = self.states[k].environment.as_deref() else {
+            return Ok(None);
+        };
+        let mut env = super::exr::read_environment(&self.path(rel), &self.states[k].name)?;
+        env.clamp_negative();
+        Ok(Some(env))
     }
 
     /// What training needs before any work starts: at least one training state, each with

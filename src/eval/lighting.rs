@@ -1,0 +1,345 @@
+//! Stage 3's lighting and material figures against ground truth (evaluation only): a recovered
+//! environment against the map that lit the state, recovered base colour against the dataset's
+//! albedo pass, and per-object metallic / roughness against the values the generator recorded.
+//! The definitions are in `docs/lighting-metrics.md`.
+//!
+//! Environments are compared texel by texel in one map frame: the caller passes the recovered
+//! map and the truth in the same frame (LightFuse's lat-long convention, `shade::envmap`). A
+//! dataset's truth environments are already rotated as Cycles used them
+//! ([`crate::io::dataset::Dataset::environment`]), which is the frame stage 3 recovers in; no
+//! rotation is applied or searched for here.
+
+use crate::io::dataset::DatasetObject;
+use crate::scene::Environment;
+use serde::{Deserialize, Serialize};
+
+/// Rec. 709 / sRGB luminance weights (scene-linear).
+pub const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// A recovered environment against the truth (see [`compare_environments`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvFigures {
+    /// PSNR in dB of `scale`·recovered against the resampled truth: solid-angle-weighted MSE
+    /// over all texels and channels, peak = the resampled truth's largest texel value (any
+    /// channel). +inf when they agree exactly (serde_json writes that as null).
+    pub psnr_db: f64,
+    /// The global factor s minimising Σ_i Ω_i |s·R_i − T_i|² over texels and channels.
+    pub scale: f64,
+    /// (P_R − P_T) / P_T, P = ∫ luminance dΩ, of the maps as given (no scale fit).
+    pub power_error: f64,
+    /// Texels compared: the recovered map's width × height.
+    pub texels: usize,
+}
+
+/// Area-averages `truth` onto a `width` × `height` lat-long grid: each target texel is the
+/// solid-angle-weighted mean of the truth texels it overlaps ([`Environment::resample`]). When
+/// the sizes are not integer multiples, a truth texel cut by a target texel's border counts with
+/// the part of it inside (its overlap in φ times its overlap in cos θ), so ∫ L dΩ is kept for any
+/// ratio. Same size: the truth itself.
+pub fn resample_truth(truth: &Environment, width: usize, height: usize) -> Environment {
+    if (truth.width, truth.height) == (width, height) {
+        truth.clone()
+    } else {
+        truth.resample(width, height)
+    }
+}
+
+/// ∫ luminance(L) dΩ over the sphere (Rec. 709 weights, [`LUMINANCE`]).
+pub fn luminous_power(env: &Environment) -> f64 {
+    env.integral()
+        .iter()
+        .zip(LUMINANCE)
+        .map(|(e, w)| e * w)
+        .sum()
+}
+
+/// Compares a recovered environment with the truth, both lat-long maps in the same frame.
+/// The truth (any size, e.g. a 2k HDRI) is first area-averaged to the recovered map's size
+/// ([`resample_truth`]); then, with Ω_i the solid angle of texel i
+/// ([`Environment::texel_solid_angle`]), R the recovered and T the resampled truth:
+///
+/// - `scale` s = Σ Ω_i R_i·T_i / Σ Ω_i R_i·R_i (sums over texels and the three channels), the
+///   least-squares fit of R to T; 0 when R is zero everywhere.
+/// - MSE = Σ Ω_i |s·R_i − T_i|² / (3 Σ Ω_i) and `psnr_db` = 10 log10(peak² / MSE) with peak =
+///   max over texels and channels of T. HDR maps have no natural peak; the truth's brightest
+///   texel at the compared resolution makes the figure independent of the truth's exposure.
+/// - `power_error` = (P_R − P_T) / P_T with P = ∫ luminance dΩ ([`luminous_power`]), of R and
+///   of the truth as given (before the fit; resampling keeps P).
+///
+/// Panics when either map is empty.
+pub fn compare_environments(recovered: &Environment, truth: &Environment) -> EnvFigures {
+    assert!(
+        recovered.width * recovered.height > 0 && truth.width * truth.height > 0,
+        "empty environment"
+    );
+    let t = resample_truth(truth, recovered.width, recovered.height);
+    let w = recovered.width;
+    let (mut rr, mut rt, mut omega_sum) = (0.0f64, 0.0f64, 0.0f64);
+    for y in 0..recovered.height {
+        let omega = recovered.texel_solid_angle(y);
+        omega_sum += omega * w as f64;
+        for x in 0..w {
+            let (r, q) = (recovered.pixels[y * w + x], t.pixels[y * w + x]);
+            for c in 0..3 {
+                rr += omega * r[c] as f64 * r[c] as f64;
+                rt += omega * r[c] as f64 * q[c] as f64;
+            }
+        }
+    }
+    let scale = if rr > 0.0 { rt / rr } else { 0.0 };
+    let mut se = 0.0f64;
+    for y in 0..recovered.height {
+        let omega = recovered.texel_solid_angle(y);
+        for x in 0..w {
+            let (r, q) = (recovered.pixels[y * w + x], t.pixels[y * w + x]);
+            for c in 0..3 {
+                se += omega * (scale * r[c] as f64 - q[c] as f64).powi(2);
+            }
+        }
+    }
+    let mse = se / (3.0 * omega_sum);
+    let peak = t
+        .pixels
+        .iter()
+        .flatten()
+        .fold(f64::NEG_INFINITY, |m, &v| m.max(v as f64));
+    let p_t = luminous_power(truth);
+    EnvFigures {
+        psnr_db: 10.0 * (peak * peak / mse).log10(),
+        scale,
+        power_error: (luminous_power(recovered) - p_t) / p_t,
+        texels: recovered.width * recovered.height,
+    }
+}
+
+/// Recovered base colour against the albedo pass (see [`compare_albedo`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AlbedoFigures {
+    /// Pixel pairs compared.
+    pub pixels: usize,
+    /// Relative error of the predictions as they are (definition at [`compare_albedo`]).
+    pub raw_error: f64,
+    /// The same after multiplying each channel of the predictions by `ratio`.
+    pub scaled_error: f64,
+    /// Per channel, the median over pixels of truth / predicted (pixels with predicted > 1e-4).
+    pub ratio: [f64; 3],
+}
+
+/// Relative error per channel, Σ|p − t| / Σ t, averaged over the channels whose Σ t > 0.
+fn relative_error(pairs: &[([f32; 3], [f32; 3])], gain: [f64; 3]) -> f64 {
+    let (mut sum, mut n) = (0.0, 0);
+    for c in 0..3 {
+        let (mut abs, mut tot) = (0.0f64, 0.0f64);
+        for (p, t) in pairs {
+            abs += (gain[c] * p[c] as f64 - t[c] as f64).abs();
+            tot += t[c] as f64;
+        }
+        if tot > 0.0 {
+            sum += abs / tot;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        f64::NAN
+    } else {
+        sum / n as f64
+    }
+}
+
+/// Compares (predicted, truth) base colours of surface pixels (the caller keeps only pixels
+/// where the albedo pass hit something, i.e. is not 0, and where the prediction is defined).
+///
+/// The error of one channel is the mean absolute error divided by the mean truth,
+/// Σ|p − t| / Σ t, and `raw_error` is its mean over the three channels. So "within 5 %" reads:
+/// on average the prediction is off by 5 % of the typical albedo of that channel. A per-pixel
+/// relative error |p − t| / t is not used because it explodes on dark materials (a black
+/// plastic of 0.03 would dominate any mean), and any floor under t would be arbitrary. Channels
+/// whose truth sums to 0 are left out of the mean; with none left, NaN.
+///
+/// `ratio[c]` is the median over pixels with p_c > 1e-4 of t_c / p_c (the upper median, as
+/// [`crate::eval::report::median`]): the per-channel gain that inverse rendering cannot tell
+/// from the light's colour and strength. It is NaN when no pixel qualifies, and `scaled_error`
+/// then uses gain 1 for that channel. `scaled_error` is `raw_error`'s definition applied to
+/// ratio ⊙ p.
+pub fn compare_albedo(pairs: &[([f32; 3], [f32; 3])]) -> AlbedoFigures {
+    let ratio: [f64; 3] = std::array::from_fn(|c| {
+        let mut r: Vec<f64> = pairs
+            .iter()
+            .filter(|(p, _)| p[c] > 1e-4)
+            .map(|(p, t)| t[c] as f64 / p[c] as f64)
+            .collect();
+        super::report::median(&mut r)
+    });
+    let gain = ratio.map(|r| if r.is_finite() { r } else { 1.0 });
+    AlbedoFigures {
+        pixels: pairs.len(),
+        raw_error: relative_error(pairs, [1.0; 3]),
+        scaled_error: relative_error(pairs, gain),
+        ratio,
+    }
+}
+
+/// One object's recovered metallic and roughness (see [`compare_materials`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MaterialFigures {
+    pub object: String,
+    /// Surface pixels of the object (by mask id) that were averaged.
+    pub pixels: usize,
+    /// Mean predicted metallic over those pixels (NaN when there are none).
+    pub metallic: f64,
+    /// Mean predicted roughness over those pixels (NaN when there are none).
+    pub roughness: f64,
+    /// The dataset's value (`objects[].material`), when recorded.
+    pub metallic_truth: Option<f64>,
+    pub roughness_truth: Option<f64>,
+}
+
+/// Per-object means of per-pixel (object id, predicted metallic, predicted roughness), one
+/// entry per dataset object in the dataset's order, with its recorded truth. Pixels whose id
+/// is 0 (background) or not an object's are ignored. The mean, not the median: the truth is
+/// an area-weighted mean over the object's materials, and the mean over its visible pixels is
+/// the matching (projected-area-weighted) figure, where a median would pick one material of a
+/// two-material object.
+pub fn compare_materials(
+    samples: &[(u32, f32, f32)],
+    objects: &[DatasetObject],
+) -> Vec<MaterialFigures> {
+    objects
+        .iter()
+        .map(|o| {
+            let (mut n, mut m, mut r) = (0usize, 0.0f64, 0.0f64);
+            for &(id, pm, pr) in samples {
+                if id == o.id {
+                    n += 1;
+                    m += pm as f64;
+                    r += pr as f64;
+                }
+            }
+            MaterialFigures {
+                object: o.name.clone(),
+                pixels: n,
+                metallic: m / n as f64,
+                roughness: r / n as f64,
+                metallic_truth: o.material.map(|t| t.metallic),
+                roughness_truth: o.material.map(|t| t.roughness),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pattern(w: usize, h: usize) -> Environment {
+        let px = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                [
+                    (x * 7 % 13) as f32 * 0.25 + 0.1,
+                    (y * 3 % 5) as f32 + 0.5,
+                    ((x + y) % 4) as f32 * 10.0,
+                ]
+            })
+            .collect();
+        Environment::new("p", w, h, px)
+    }
+
+    #[test]
+    fn a_map_against_itself_times_three() {
+        let truth = pattern(256, 128);
+        let mut rec = truth.clone();
+        for v in rec.pixels.iter_mut().flatten() {
+            *v *= 3.0;
+        }
+        let f = compare_environments(&rec, &truth);
+        // 3·T is rounded to f32: agreement to ~1e-8, not exactly.
+        assert!((f.scale - 1.0 / 3.0).abs() < 1e-7, "{f:?}");
+        assert!(f.psnr_db > 100.0, "{f:?}");
+        assert!((f.power_error - 2.0).abs() < 1e-7, "{f:?}");
+        assert_eq!(f.texels, 256 * 128);
+        let same = compare_environments(&truth, &truth);
+        assert_eq!(same.psnr_db, f64::INFINITY);
+        assert_eq!((same.scale, same.power_error), (1.0, 0.0));
+    }
+
+    #[test]
+    fn a_replicated_double_size_truth_resamples_back_exactly() {
+        let small = pattern(256, 128);
+        let big_px = (0..512 * 256)
+            .map(|i| small.pixels[(i / 512 / 2) * 256 + (i % 512) / 2])
+            .collect();
+        let big = Environment::new("big", 512, 256, big_px);
+        let back = resample_truth(&big, 256, 128);
+        for (a, b) in back.pixels.iter().zip(&small.pixels) {
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() <= 1e-6 * b[c].abs(), "{a:?} vs {b:?}");
+            }
+        }
+        let f = compare_environments(&small, &big);
+        assert!((f.scale - 1.0).abs() < 1e-6 && f.psnr_db > 120.0, "{f:?}");
+        assert!(f.power_error.abs() < 1e-6, "{f:?}");
+    }
+
+    #[test]
+    fn non_integer_ratios_keep_power_and_a_constant_stays_constant() {
+        let truth = Environment::constant("c", 300, 170, [2.0, 1.0, 0.5]);
+        let rec = Environment::constant("r", 256, 128, [1.0, 0.5, 0.25]);
+        let f = compare_environments(&rec, &truth);
+        assert!((f.scale - 2.0).abs() < 1e-6, "{f:?}");
+        assert!(f.psnr_db > 100.0, "{f:?}");
+        assert!((f.power_error + 0.5).abs() < 1e-6, "{f:?}");
+    }
+
+    #[test]
+    fn albedo_at_half_the_truth() {
+        let truth = [[0.8f32, 0.4, 0.05], [0.2, 0.6, 0.9], [0.03, 0.03, 0.035]];
+        let pairs: Vec<_> = truth.iter().map(|t| (t.map(|v| v / 2.0), *t)).collect();
+        let f = compare_albedo(&pairs);
+        assert_eq!(f.pixels, 3);
+        for r in f.ratio {
+            assert!((r - 2.0).abs() < 1e-6, "{f:?}");
+        }
+        assert!((f.raw_error - 0.5).abs() < 1e-6, "{f:?}");
+        assert!(f.scaled_error < 1e-6, "{f:?}");
+    }
+
+    #[test]
+    fn albedo_without_usable_pixels() {
+        let f = compare_albedo(&[([0.0, 0.5, 0.5], [0.2, 0.5, 0.5])]);
+        assert!(f.ratio[0].is_nan() && f.ratio[1] == 1.0);
+        // Channel 0 keeps gain 1: |0 − 0.2| / 0.2 = 1, the others are exact.
+        assert!((f.scaled_error - 1.0 / 3.0).abs() < 1e-6, "{f:?}");
+        assert!(compare_albedo(&[]).raw_error.is_nan());
+    }
+
+    #[test]
+    fn materials_are_averaged_per_object() {
+        let objects: Vec<DatasetObject> = serde_json::from_value(serde_json::json!([
+            {"id": 1, "name": "cup", "material": {"metallic": 0.0, "roughness": 0.2}},
+            {"id": 2, "name": "bowl"},
+            {"id": 3, "name": "unseen"}
+        ]))
+        .unwrap();
+        let samples = [
+            (1, 0.1, 0.2),
+            (1, 0.3, 0.4),
+            (2, 1.0, 0.5),
+            (0, 9.0, 9.0),
+            (7, 9.0, 9.0),
+        ];
+        let f = compare_materials(&samples, &objects);
+        assert_eq!(f.len(), 3);
+        assert_eq!((f[0].object.as_str(), f[0].pixels), ("cup", 2));
+        assert!((f[0].metallic - 0.2).abs() < 1e-6 && (f[0].roughness - 0.3).abs() < 1e-6);
+        assert_eq!(
+            (f[0].metallic_truth, f[0].roughness_truth),
+            (Some(0.0), Some(0.2))
+        );
+        assert_eq!(
+            (f[1].pixels, f[1].metallic, f[1].metallic_truth),
+            (1, 1.0, None)
+        );
+        assert!(f[2].pixels == 0 && f[2].metallic.is_nan());
+    }
+}
