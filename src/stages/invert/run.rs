@@ -4,6 +4,10 @@
 
 use super::train::{initial_environment, Inverter, Losses, Settings, TrainState};
 use crate::error::{Error, Result};
+use crate::eval::lighting::{
+    compare_albedo, compare_environments, compare_materials, AlbedoFigures, EnvFigures,
+    MaterialFigures,
+};
 use crate::eval::metrics::psnr_srgb;
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
@@ -55,6 +59,9 @@ pub struct StateReport {
     pub state: String,
     pub training: ImageFigures,
     pub heldout: ImageFigures,
+    /// The recovered environment against the dataset's (evaluation only; never used in
+    /// training), [`crate::eval::lighting::compare_environments`].
+    pub environment: Option<EnvFigures>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -68,6 +75,12 @@ pub struct Report {
     pub seconds: f64,
     pub surfels: usize,
     pub states: Vec<StateReport>,
+    /// Base colour at the pixel centres of the evaluated training views against the dataset's
+    /// albedo pass, on pixels both call surface ([`crate::eval::lighting::compare_albedo`]).
+    pub albedo: Option<AlbedoFigures>,
+    /// Per object, the mean metallic and roughness its pixels see, and the generator's values
+    /// when the dataset records them.
+    pub materials: Vec<MaterialFigures>,
 }
 
 /// What a resumed run needs: the inverter (parameters, Adam, iteration, generator).
@@ -144,23 +157,54 @@ fn psnr_peak(pairs: &[([f32; 3], [f32; 3])], peak: f64) -> f64 {
     10.0 * (peak * peak / mse).log10()
 }
 
-/// Renders every `stride`-th pixel of `views` and compares with the captures.
-fn image_figures(est: &Estimator, views: &[&Observation], spp: u32, stride: u32) -> ImageFigures {
+/// A view's albedo pass from the dataset, when it has one.
+type AlbedoPass = Option<Vec<[f32; 3]>>;
+
+/// What the evaluation gathers besides the images: (predicted, true) base colours and
+/// (object id, metallic, roughness) at pixel centres.
+#[derive(Default)]
+struct Gathered {
+    albedo: Vec<([f32; 3], [f32; 3])>,
+    materials: Vec<(u32, f32, f32)>,
+}
+
+/// Renders every `stride`-th pixel of `views` and compares with the captures; with `gather`,
+/// also collects the material samples (`albedo[i]` = the dataset's albedo pass of `views[i]`).
+fn image_figures(
+    est: &Estimator,
+    views: &[&Observation],
+    spp: u32,
+    stride: u32,
+    mut gather: Option<(&mut Gathered, &[AlbedoPass])>,
+) -> ImageFigures {
     let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
     let mut pairs: Vec<([f32; 3], [f32; 3])> = Vec::new();
-    for o in views {
+    for (vi, o) in views.iter().enumerate() {
         let cam = &o.camera;
         let coords: Vec<(u32, u32)> = (0..cam.h)
             .step_by(stride as usize)
             .flat_map(|y| (0..cam.w).step_by(stride as usize).map(move |x| (x, y)))
             .collect();
-        let rendered: Vec<[f32; 3]> = coords
+        let rendered: Vec<_> = coords
             .par_iter()
             .with_min_len(16)
-            .map(|&(x, y)| est.pixel(cam, &filter, (x, y), spp, 0x5eed).rgb)
+            .map(|&(x, y)| est.pixel(cam, &filter, (x, y), spp, 0x5eed))
             .collect();
-        for ((x, y), r) in coords.iter().zip(rendered) {
-            pairs.push((r, o.rgb[(y * cam.w + x) as usize]));
+        for ((x, y), p) in coords.iter().zip(rendered) {
+            let i = (y * cam.w + x) as usize;
+            pairs.push((p.rgb, o.rgb[i]));
+            if let Some((g, albedo)) = gather.as_mut() {
+                let surface = p.depth > 0.0 && o.depth[i] > 0.0;
+                if let Some(truth) = &albedo[vi] {
+                    if surface && truth[i].iter().any(|&v| v > 0.0) {
+                        g.albedo.push((p.albedo, truth[i]));
+                    }
+                }
+                if surface && o.mask[i] > 0 {
+                    g.materials
+                        .push((o.mask[i] as u32, p.metallic, p.roughness));
+                }
+            }
         }
     }
     if pairs.is_empty() {
@@ -316,8 +360,20 @@ pub fn invert(opts: &Options) -> Result<Report> {
         iterations: c.inverter.iteration,
         seconds: t0.elapsed().as_secs_f64(),
         surfels: out.surfel_count(),
-        states: measure(&out, &names, &train, &held, opts),
+        states: Vec::new(),
+        albedo: None,
+        materials: Vec::new(),
     };
+    let report = measure(
+        report,
+        &out,
+        &dataset,
+        &train_states,
+        &names,
+        &train,
+        &held,
+        opts,
+    )?;
     let mut files = AtomicFiles::new();
     files.write(
         &out_dir.join("report.json"),
@@ -327,30 +383,54 @@ pub fn invert(opts: &Options) -> Result<Report> {
     Ok(report)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn measure(
+    mut report: Report,
     scene: &Scene,
+    dataset: &Dataset,
+    dataset_states: &[usize],
     names: &[String],
     train: &[Vec<Observation>],
     held: &[Vec<Observation>],
     opts: &Options,
-) -> Vec<StateReport> {
+) -> Result<Report> {
     let trace = TraceScene::new(scene);
-    names
-        .iter()
-        .enumerate()
-        .map(|(j, name)| {
-            let state = &scene.states[scene.state_index(name).expect("checked")];
-            let placed = trace.place_state(state);
-            let env_ref = state.environment.expect("set above");
-            let map = EnvMap::new(&scene.environments[env_ref.index], env_ref.rotation_deg);
-            let est = Estimator::new(&placed, &map, self_hit_epsilon(scene, state));
-            let t: Vec<&Observation> = train[j].iter().collect();
-            let hd: Vec<&Observation> = held[j].iter().collect();
-            StateReport {
-                state: name.clone(),
-                training: image_figures(&est, &t, opts.eval_spp, opts.eval_stride),
-                heldout: image_figures(&est, &hd, opts.eval_spp, opts.eval_stride),
-            }
-        })
-        .collect()
+    let mut gathered = Gathered::default();
+    for (j, name) in names.iter().enumerate() {
+        let k = dataset_states[j];
+        let state = &scene.states[scene.state_index(name).expect("checked")];
+        let placed = trace.place_state(state);
+        let env_ref = state.environment.expect("set above");
+        let recovered = &scene.environments[env_ref.index];
+        let map = EnvMap::new(recovered, env_ref.rotation_deg);
+        let est = Estimator::new(&placed, &map, self_hit_epsilon(scene, state));
+        let t: Vec<&Observation> = train[j].iter().collect();
+        let hd: Vec<&Observation> = held[j].iter().collect();
+        let albedo = t
+            .iter()
+            .map(|o| dataset.albedo(k, o.view))
+            .collect::<Result<Vec<_>>>()?;
+        let training = image_figures(
+            &est,
+            &t,
+            opts.eval_spp,
+            opts.eval_stride,
+            Some((&mut gathered, &albedo)),
+        );
+        let heldout = image_figures(&est, &hd, opts.eval_spp, opts.eval_stride, None);
+        // The dataset's environment files are stored as Cycles used them (rotation applied),
+        // i.e. in the world frame the recovered maps use.
+        let environment = dataset
+            .environment(k)?
+            .map(|truth| compare_environments(recovered, &truth));
+        report.states.push(StateReport {
+            state: name.clone(),
+            training,
+            heldout,
+            environment,
+        });
+    }
+    report.albedo = (!gathered.albedo.is_empty()).then(|| compare_albedo(&gathered.albedo));
+    report.materials = compare_materials(&gathered.materials, &dataset.objects);
+    Ok(report)
 }
