@@ -24,6 +24,7 @@ use lightfuse::scene::synthetic::SplitMix;
 use lightfuse::scene::{Camera, Component, Environment, Rigid, Scene, Surfels};
 use lightfuse::shade::envmap::EnvMap;
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter};
+use lightfuse::shade::Sampler;
 use lightfuse::trace::{RecordGrad, TraceRay, TraceScene};
 use rayon::prelude::*;
 use std::hint::black_box;
@@ -390,5 +391,72 @@ fn render(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, build, rays, backward, render);
+/// Stage 3's two passes on the 200k room, 16,384 path samples (64x64 pixels, 4 spp): the
+/// forward estimate, and the path replay adjoint (re-trace each sample, its adjoint into the
+/// texels and the records' materials, and the records' backward pass into every hit surfel's
+/// material), the ratio of the two being what issue 12 asks about (aim ≤ 1.5).
+fn path_replay(c: &mut Criterion) {
+    let scene = room(200_000);
+    let traced = TraceScene::new(&scene);
+    let placed = traced.place_state(&scene.states[0]);
+    let parts: Vec<&Surfels> = scene.components.iter().map(|c| &c.surfels).collect();
+    let env = EnvMap::new(&sky(), 0.0);
+    let estimator = Estimator::new(&placed, &env, self_hit_epsilon(&scene, &scene.states[0]));
+    let cam = camera_of(64, 64);
+    let samples: Vec<(u32, u32)> = (0..cam.w * cam.h)
+        .flat_map(|p| (0..4).map(move |i| (p, i)))
+        .collect();
+    let ray = |p: u32, i: u32, s: &Sampler| {
+        let [ux, uy] = s.get_2d(i, lightfuse::shade::estimator::dim::PIXEL);
+        cam.ray((p % cam.w) as f32 + ux, (p / cam.w) as f32 + uy)
+    };
+    let mut group = c.benchmark_group("path_replay_200k");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(15));
+    group.throughput(Throughput::Elements(samples.len() as u64));
+    group.bench_function("forward", |b| {
+        b.iter(|| {
+            samples
+                .par_iter()
+                .map(|&(p, i)| {
+                    let s = Sampler::new(p, 0);
+                    let (o, d) = ray(p, i, &s);
+                    estimator.radiance(o, d, &s, i).radiance[1]
+                })
+                .sum::<f32>()
+        })
+    });
+    group.bench_function("adjoint", |b| {
+        b.iter(|| {
+            let per: Vec<(Vec<TraceRay>, Vec<RecordGrad>, f32)> = samples
+                .par_chunks(64)
+                .map(|chunk| {
+                    let (mut rays, mut grads, mut texels) = (Vec::new(), Vec::new(), 0.0f32);
+                    for &(p, i) in chunk {
+                        let s = Sampler::new(p, 0);
+                        let (o, d) = ray(p, i, &s);
+                        let path = estimator.replay(o, d, &s, i);
+                        let mg = path.adjoint(&env, [1e-3, 1e-3, 1e-3], |_, g| texels += g[1]);
+                        for (r, g) in path.record_grads(&mg).into_iter().flatten() {
+                            rays.push(r);
+                            grads.push(g);
+                        }
+                    }
+                    (rays, grads, texels)
+                })
+                .collect();
+            let (mut rays, mut grads) = (Vec::new(), Vec::new());
+            for (r, g, _) in per {
+                rays.extend(r);
+                grads.extend(g);
+            }
+            placed.composite_backward(&parts, &rays, &grads, false)
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, build, rays, backward, render, path_replay);
 criterion_main!(benches);

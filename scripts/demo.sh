@@ -30,6 +30,8 @@ echo "== stage 1: reconstructing the training states (lightfuse reconstruct, fas
 "$lf" reconstruct "$out/dataset" -o "$out/recon"
 echo "== stage 2: refining its geometry for ray tracing (lightfuse refine, fast preset)"
 "$lf" refine "$out/dataset" "$out/recon"
+echo "== stage 3: inverse rendering of materials and each state's environment (lightfuse invert, fast preset)"
+"$lf" invert "$out/dataset" "$out/recon"
 echo "== the reconstruction in the test state's layout (baked appearance, 2DGS splatting)"
 python3 - "$out/dataset/dataset.json" "$out/test_layout.json" <<'PY'
 import json, sys
@@ -40,5 +42,5 @@ print("test state:", test["name"])
 PY
 test_state=$(python3 -c 'import json,sys; print(next(s["name"] for s in json.load(open(sys.argv[1]))["states"] if s["split"] == "test"))' "$out/dataset/dataset.json")
 "$lf" render "$out/recon/scene.glb" --layout "$out/test_layout.json" --cameras "$out/dataset" --frames "$test_state" --baked --out "$out/recon/$test_state"
-echo "done: $out/recon/scene.glb (reconstruction; report.json beside it), $out/recon/refined.glb (refined for ray tracing; refine/report.json), $out/recon/$test_state/ (its test-layout renders)"
+echo "done: $out/recon/scene.glb (reconstruction; report.json beside it), $out/recon/refined.glb (refined for ray tracing; refine/report.json), $out/recon/relightable.glb (materials and recovered environments; invert/report.json), $out/recon/$test_state/ (its test-layout renders)"
 echo "done: $out/scene.glb (open in any KHR_gaussian_splatting viewer), $out/scene.usda, $out/scene.ply"
