@@ -12,7 +12,7 @@
 
 use glam::Vec3;
 use lightfuse::scene::{EnvRef, Environment, Scene};
-use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter};
+use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
 use lightfuse::shade::{brdf, EnvMap, Material, Sampler};
 use lightfuse::trace::TraceScene;
 use std::path::Path;
@@ -39,11 +39,16 @@ fn albedo(m: &Material, mu: f32) -> f64 {
 }
 
 fn furnace(m: Material) {
+    furnace_with(m, Strategy::Full);
+}
+
+fn furnace_with(m: Material, strategy: Strategy) {
     let scene = scene_of(vec![sphere(Vec3::ZERO, 1.0, 6000, m)]);
     let trace = TraceScene::new(&scene);
     let placed = trace.place_state(&scene.states[0]);
     let env = EnvMap::new(&Environment::constant("white", 32, 16, [1.0; 3]), 0.0);
-    let est = Estimator::new(&placed, &env, self_hit_epsilon(&scene, &scene.states[0]));
+    let est = Estimator::new(&placed, &env, self_hit_epsilon(&scene, &scene.states[0]))
+        .with_strategy(strategy);
     let cam = camera(Vec3::new(0.0, 0.0, 3.0), 16, 16, 20.0);
     let filter = PixelFilter::new(0.0);
     // E(μ) tabulated, then interpolated (it is smooth in μ).
@@ -86,6 +91,13 @@ fn furnace(m: Material) {
 #[test]
 fn white_furnace_diffuse_sphere() {
     furnace(mat([1.0; 3], 0.0, 1.0));
+}
+
+/// The naive estimator (cosine continuations only) is unbiased too: same furnace, same bounds.
+#[test]
+fn white_furnace_naive_estimator() {
+    furnace_with(mat([1.0; 3], 0.0, 1.0), Strategy::Naive);
+    furnace_with(mat([1.0; 3], 1.0, 0.5), Strategy::Naive);
 }
 
 #[test]

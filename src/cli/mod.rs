@@ -78,6 +78,11 @@ pub struct InvertArgs {
     /// "max16" (x1, x2 from half) - the paper's Table 4.
     #[arg(long, default_value = "paper")]
     pub spp_schedule: String,
+    /// Training estimator: "full" (environment next-event estimation and a BSDF continuation
+    /// with MIS, the paper's) or "naive" (cosine-hemisphere continuations only, no next-event
+    /// estimation, no MIS: the paper's Table 4 baseline).
+    #[arg(long, default_value = "full")]
+    pub estimator: String,
     /// Evaluation: samples per pixel, and every N-th pixel in x and y of each view.
     #[arg(long, default_value_t = 16)]
     pub eval_spp: u32,
@@ -690,6 +695,15 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
             a.spp_schedule
         ))
     })?;
+    settings.estimator = match a.estimator.as_str() {
+        "full" => crate::shade::estimator::Strategy::Full,
+        "naive" => crate::shade::estimator::Strategy::Naive,
+        other => {
+            return Err(Error::Usage(format!(
+                "--estimator: expected \"full\" or \"naive\", found {other:?}"
+            )))
+        }
+    };
     if a.eval_spp == 0 || a.eval_stride == 0 {
         return Err(Error::Usage(
             "--eval-spp and --eval-stride: expected at least 1".into(),

@@ -357,6 +357,23 @@ fn sample_vndf(wo: Vec3, alpha: f32, u: [f32; 2]) -> Vec3 {
     Vec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(0.0)).normalize()
 }
 
+/// Cosine-weighted hemisphere (Malley): a uniform disc point lifted to the hemisphere, local
+/// frame (n = +z), density cos θ / π.
+fn cosine_local(u: [f32; 2]) -> Vec3 {
+    let r = u[0].sqrt();
+    let phi = 2.0 * PI * u[1];
+    Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u[0]).max(0.0).sqrt())
+}
+
+/// A cosine-weighted direction about `n` and its density cos θ / π (the naive estimator's only
+/// strategy); `None` for the measure-zero directions at the horizon.
+pub fn sample_cosine(n: Vec3, u: [f32; 2]) -> Option<(Vec3, f32)> {
+    let frame = Frame::new(n);
+    let wi = frame.to_world(cosine_local(u)).normalize();
+    let cos = n.dot(wi);
+    (cos > 0.0).then_some((wi, cos / PI))
+}
+
 /// Draws wi from the cosine / GGX-VNDF mixture: `u_lobe` picks the lobe (GGX when
 /// `u_lobe < specular_probability`), `u` drives the chosen lobe. `None` when wo is below the
 /// horizon or the reflected direction falls below it (the VNDF's G2/G1 loss); the estimator
@@ -371,10 +388,7 @@ pub fn sample(n: Vec3, wo: Vec3, m: &Material, u: [f32; 2], u_lobe: f32) -> Opti
         let h = sample_vndf(wo_l, m.alpha(), u);
         2.0 * wo_l.dot(h) * h - wo_l
     } else {
-        // Cosine-weighted hemisphere (Malley): a uniform disc point lifted to the hemisphere.
-        let r = u[0].sqrt();
-        let phi = 2.0 * PI * u[1];
-        Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u[0]).max(0.0).sqrt())
+        cosine_local(u)
     };
     if wi_l.z <= 0.0 {
         return None;

@@ -109,6 +109,21 @@ pub struct PathSample {
     pub rays: u32,
 }
 
+/// Which sampling strategies a path sample uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Strategy {
+    /// The paper's: environment next-event estimation and a BSDF continuation combined by MIS at
+    /// the primary record, two next-event samples at the secondary record (module doc).
+    #[default]
+    Full,
+    /// The paper's Table 4 baseline: no next-event estimation and no MIS. The primary record
+    /// draws one cosine-hemisphere continuation; where it escapes it sees the environment,
+    /// where it meets a secondary record that record draws one more cosine-hemisphere direction
+    /// and sees the environment through its transmittance. Unbiased, only noisier.
+    Naive,
+}
+
 /// The one-bounce estimator over one placed scene and one environment.
 #[derive(Clone, Copy)]
 pub struct Estimator<'a> {
@@ -116,6 +131,7 @@ pub struct Estimator<'a> {
     pub env: &'a EnvMap,
     /// Offset of secondary-ray origins along the normal, and their `t_min` (world units).
     pub eps: f32,
+    pub strategy: Strategy,
 }
 
 /// Power heuristic, β = 2 (Veach 1995), for a sample of density `a` against strategy `b`.
@@ -167,7 +183,17 @@ impl Shading {
 impl<'a> Estimator<'a> {
     /// The estimator with secondary-ray offset `eps` (usually [`self_hit_epsilon`]).
     pub fn new(scene: &'a Placed<'a>, env: &'a EnvMap, eps: f32) -> Self {
-        Estimator { scene, env, eps }
+        Estimator {
+            scene,
+            env,
+            eps,
+            strategy: Strategy::Full,
+        }
+    }
+
+    /// The same estimator with other sampling strategies.
+    pub fn with_strategy(self, strategy: Strategy) -> Self {
+        Estimator { strategy, ..self }
     }
 
     /// One path sample along the camera ray `origin + t dir` (`dir` unit length), drawing
@@ -221,7 +247,10 @@ impl<'a> Estimator<'a> {
         if a > 0.0 {
             if let Some(s) = Shading::of(&record) {
                 p.materials[0] = s.material;
-                self.shade_primary(&s, -d, a, sampler, index, &mut p);
+                match self.strategy {
+                    Strategy::Full => self.shade_primary(&s, -d, a, sampler, index, &mut p),
+                    Strategy::Naive => self.shade_naive(&s, -d, a, sampler, index, &mut p),
+                }
             }
         }
         p
@@ -324,6 +353,81 @@ impl<'a> Estimator<'a> {
                     });
                 }
             }
+        }
+    }
+
+    /// [`Strategy::Naive`]'s terms for a primary record of coverage `a`: one cosine-hemisphere
+    /// continuation (Sobol dimensions of the BSDF sample), and at a secondary record one more
+    /// (the dimensions of its first environment sample) seen through its transmittance.
+    fn shade_naive(
+        &self,
+        s: &Shading,
+        wo: Vec3,
+        a: f32,
+        sampler: &Sampler,
+        index: u32,
+        p: &mut PathReplay,
+    ) {
+        let Some((wi, pdf)) = brdf::sample_cosine(s.n, sampler.get_2d(index, dim::BSDF)) else {
+            return;
+        };
+        let o = s.x + self.eps * s.n;
+        p.rays += 1;
+        let ray = TraceRay {
+            origin: o.to_array(),
+            dir: wi.to_array(),
+            t_min: self.eps,
+            t_max: f32::INFINITY,
+        };
+        let rec2 = self
+            .scene
+            .composite(ray.origin, ray.dir, ray.t_min, ray.t_max);
+        p.continuation = Some((ray, rec2));
+        let first = Bounce {
+            n: s.n,
+            wo,
+            wi,
+            f: brdf::eval_f_cos(s.n, wo, wi, &s.material),
+        };
+        let a2 = if rec2.hits == 0 {
+            0.0
+        } else {
+            rec2.alpha.max(0.0)
+        };
+        p.push(Term {
+            scale: a * (1.0 - a2) / pdf,
+            primary: Some(first),
+            secondary: None,
+            env_dir: wi,
+        });
+        if a2 <= 0.0 {
+            return;
+        }
+        let Some(s2) = Shading::of(&rec2) else {
+            return;
+        };
+        p.materials[1] = s2.material;
+        let u = sampler.get_2d(index, dim::SECONDARY_ENV[0]);
+        let Some((wi2, pdf2)) = brdf::sample_cosine(s2.n, u) else {
+            return;
+        };
+        let f2 = brdf::eval_f_cos(s2.n, -wi, wi2, &s2.material);
+        if f2.iter().all(|&v| v <= 0.0) {
+            return;
+        }
+        let tr = self.visibility(&s2, wi2, &mut p.rays);
+        if tr > 0.0 {
+            p.push(Term {
+                scale: a * a2 / pdf * tr / pdf2,
+                primary: Some(first),
+                secondary: Some(Bounce {
+                    n: s2.n,
+                    wo: -wi,
+                    wi: wi2,
+                    f: f2,
+                }),
+                env_dir: wi2,
+            });
         }
     }
 

@@ -30,7 +30,7 @@ use crate::optim::{env_tv, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Environment, Rigid, Surfels};
 use crate::shade::envmap::{direction_to_uv, EnvMap};
-use crate::shade::estimator::{Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
+use crate::shade::estimator::{Estimator, PixelFilter, Strategy, DEFAULT_FILTER_WIDTH};
 use crate::shade::Sampler;
 use crate::trace::{RecordGrad, TraceRay, TraceScene};
 use glam::Vec3;
@@ -75,6 +75,10 @@ pub struct Settings {
     /// Samples per pixel at the start, and how they grow.
     pub spp: u32,
     pub spp_schedule: SppSchedule,
+    /// The training estimator's sampling strategies (Table 4's `naive` baseline, or the
+    /// paper's); evaluation always renders with the paper's.
+    #[serde(default)]
+    pub estimator: Strategy,
     pub env_width: u32,
     pub env_height: u32,
     /// Adam learning rates: on ln E, and on the logits of the materials.
@@ -102,6 +106,7 @@ impl Settings {
             base_color_until: 9_000,
             spp: 8,
             spp_schedule: SppSchedule::Paper,
+            estimator: Strategy::Full,
             env_width: 256,
             env_height: 128,
             lr_env: 0.03,
@@ -338,7 +343,7 @@ impl Inverter {
         let placed = trace.place(&states[k].transforms);
         let env = self.environment(k, "");
         let map = EnvMap::new(&env, 0.0);
-        let est = Estimator::new(&placed, &map, states[k].eps);
+        let est = Estimator::new(&placed, &map, states[k].eps).with_strategy(s.estimator);
         let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
         let ray_of = |p: u32, i: u32, sampler: &Sampler| {
             let (x, y) = (p % cam.w, p / cam.w);
