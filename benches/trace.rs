@@ -391,24 +391,59 @@ fn render(c: &mut Criterion) {
     group.finish();
 }
 
-/// Stage 3's two passes on the 200k room, 16,384 path samples (64x64 pixels, 4 spp): the
-/// forward estimate, and the path replay adjoint (re-trace each sample, its adjoint into the
-/// texels and the records' materials, and the records' backward pass into every hit surfel's
-/// material), the ratio of the two being what issue 12 asks about (aim ≤ 1.5).
+/// Stage 3's two passes on the 200k room, 16,384 path samples (64x64 pixels, 4 spp), as
+/// `Inverter::step` runs them: the forward estimate and the path replay adjoint (each sample
+/// walked again, its adjoint into the texels and the records' materials, and those into every
+/// hit surfel's material). `traced` traces every camera ray and runs the full composite
+/// backward; `cached` starts from primary records traced once (`PrimaryCache`, what stage 3
+/// does: geometry is fixed) and scatters material gradients through the kept hit weights. The
+/// adjoint/forward ratio of each is what issue 12 asks about (aim ≤ 1.5).
 fn path_replay(c: &mut Criterion) {
+    use lightfuse::io::dataset::Observation;
+    use lightfuse::stages::invert::cache::PrimaryCache;
+    use lightfuse::stages::invert::train::TrainState;
+    use lightfuse::trace::{scatter_material_grad, MaterialGrads};
     let scene = room(200_000);
     let traced = TraceScene::new(&scene);
     let placed = traced.place_state(&scene.states[0]);
     let parts: Vec<&Surfels> = scene.components.iter().map(|c| &c.surfels).collect();
     let env = EnvMap::new(&sky(), 0.0);
-    let estimator = Estimator::new(&placed, &env, self_hit_epsilon(&scene, &scene.states[0]));
+    let eps = self_hit_epsilon(&scene, &scene.states[0]);
+    let estimator = Estimator::new(&placed, &env, eps);
     let cam = camera_of(64, 64);
+    let filter = PixelFilter::new(lightfuse::shade::estimator::DEFAULT_FILTER_WIDTH);
+    const SPP: u32 = 4;
     let samples: Vec<(u32, u32)> = (0..cam.w * cam.h)
-        .flat_map(|p| (0..4).map(move |i| (p, i)))
+        .flat_map(|p| (0..SPP).map(move |i| (p, i)))
         .collect();
-    let ray = |p: u32, i: u32, s: &Sampler| {
-        let [ux, uy] = s.get_2d(i, lightfuse::shade::estimator::dim::PIXEL);
-        cam.ray((p % cam.w) as f32 + ux, (p / cam.w) as f32 + uy)
+    let ray = |p: u32, i: u32, s: &Sampler| filter.camera_ray(&cam, (p % cam.w, p / cam.w), s, i);
+    let n = (cam.w * cam.h) as usize;
+    let view = Observation {
+        state: 0,
+        view: 0,
+        camera: cam,
+        rgb: vec![[0.0; 3]; n],
+        depth: vec![0.0; n],
+        normal: vec![[0.0; 3]; n],
+        mask: vec![0; n],
+    };
+    let states = [TrainState {
+        views: vec![&view],
+        transforms: scene.states[0].transforms.clone(),
+        eps,
+    }];
+    let cache = PrimaryCache::build(&traced, &states, SPP, 0);
+    let f = cache.figures();
+    eprintln!(
+        "path_replay_200k: primary cache of {} entries, {:.1} hits each, {:.1} MB, traced in {:.2} s",
+        f.entries,
+        f.hits as f64 / f.entries as f64,
+        f.bytes as f64 / 1e6,
+        f.seconds
+    );
+    let from_cache = |p: u32, i: u32, s: &Sampler| {
+        let (r, rec) = cache.record(cache.entry(0, p, i), &parts);
+        estimator.replay_from(r, rec, s, i)
     };
     let mut group = c.benchmark_group("path_replay_200k");
     group
@@ -416,7 +451,7 @@ fn path_replay(c: &mut Criterion) {
         .warm_up_time(Duration::from_secs(1))
         .measurement_time(Duration::from_secs(15));
     group.throughput(Throughput::Elements(samples.len() as u64));
-    group.bench_function("forward", |b| {
+    group.bench_function("forward_traced", |b| {
         b.iter(|| {
             samples
                 .par_iter()
@@ -428,7 +463,7 @@ fn path_replay(c: &mut Criterion) {
                 .sum::<f32>()
         })
     });
-    group.bench_function("adjoint", |b| {
+    group.bench_function("adjoint_traced", |b| {
         b.iter(|| {
             let per: Vec<(Vec<TraceRay>, Vec<RecordGrad>, f32)> = samples
                 .par_chunks(64)
@@ -453,6 +488,61 @@ fn path_replay(c: &mut Criterion) {
                 grads.extend(g);
             }
             placed.composite_backward(&parts, &rays, &grads, false)
+        })
+    });
+    group.bench_function("forward_cached", |b| {
+        b.iter(|| {
+            samples
+                .par_iter()
+                .map(|&(p, i)| {
+                    let s = Sampler::new(p, 0);
+                    from_cache(p, i, &s).radiance(&env)[1]
+                })
+                .sum::<f32>()
+        })
+    });
+    group.bench_function("adjoint_cached", |b| {
+        b.iter(|| {
+            type Out = (
+                Vec<(usize, RecordGrad)>,
+                Vec<TraceRay>,
+                Vec<RecordGrad>,
+                f32,
+            );
+            let per: Vec<Out> = samples
+                .par_chunks(64)
+                .map(|chunk| {
+                    let mut out: Out = (Vec::new(), Vec::new(), Vec::new(), 0.0);
+                    for &(p, i) in chunk {
+                        let s = Sampler::new(p, 0);
+                        let path = from_cache(p, i, &s);
+                        let mg = path.adjoint(&env, [1e-3, 1e-3, 1e-3], |_, g| out.3 += g[1]);
+                        let [primary, secondary] = path.record_grads(&mg);
+                        if let Some((_, g)) = primary {
+                            out.0.push((cache.entry(0, p, i), g));
+                        }
+                        if let Some((r, g)) = secondary {
+                            out.1.push(r);
+                            out.2.push(g);
+                        }
+                    }
+                    out
+                })
+                .collect();
+            let mut d: Vec<MaterialGrads> = parts
+                .iter()
+                .map(|s| MaterialGrads::zeros(s.len()))
+                .collect();
+            let (mut rays, mut grads) = (Vec::new(), Vec::new());
+            for (primary, r, g, _) in per {
+                for (e, g) in &primary {
+                    scatter_material_grad(cache.hits(*e), g, &mut d);
+                }
+                rays.extend(r);
+                grads.extend(g);
+            }
+            placed.material_backward(&rays, &grads, &mut d);
+            d
         })
     });
     group.finish();

@@ -1,19 +1,28 @@
-//! Stage 3's loop on a scene whose answer is known: a floor and a glossy sphere of known
-//! materials, rendered by LightFuse itself in two states (the sphere moved, each state under its
-//! own environment), inverted back from grey by [`lightfuse::stages::invert::train::Inverter`].
+//! Stage 3's loop on a scene whose answer is known: a rough dielectric floor and a glossy metal
+//! sphere of known materials, rendered by LightFuse itself in two states (the sphere moved, each
+//! state under its own sky with a small sun), inverted back from grey by
+//! [`lightfuse::stages::invert::train::Inverter`].
 //!
-//! What is asserted, and why these bounds. The captures are LightFuse's own renders at 128 spp,
-//! so the model can fit them exactly; what limits recovery is the optimiser's budget (500
-//! iterations of 1,024 pixels at 4-16 spp, ~45 s) and the estimator's noise, which L1 turns
-//! into a bias: L1's gradient vanishes where the *median* of the pixel estimate meets the
-//! capture, and a next-event estimate of a small bright sun is skewed (median below mean), so
-//! the fit overshoots where such noise dominates. Measured on this seed: base colour within
-//! 1-23 % per channel (floor [0.605, 0.473, 0.370] for [0.6, 0.45, 0.3], sphere
-//! [0.204, 0.335, 0.700] for [0.25, 0.4, 0.7]), the sphere's roughness 0.7 -> 0.58 (truth 0.3),
-//! the environments 17.1 and 19.7 dB over the upper hemisphere after a global scale. The
-//! issue's aims (2 %, 0.05) are not met yet; the bounds below are the measured figures with a
-//! margin, far from where the grey start is (0.5 everywhere: up to 100 % off), so a broken
-//! gradient or schedule fails: base colour 30 %, roughness below 0.65, environments 15 dB.
+//! **What makes the answer identifiable.** Albedo and light trade off (a·E): only where the
+//! captures see the environment is its scale fixed, so five of each state's eight views look at
+//! the sky in every direction above the horizon. Roughness shows only in a highlight narrower
+//! than the light: the sun is ~4° across (a 64×32 map) and the sphere is a metal, so its whole
+//! appearance is a reflection blurred by its roughness (a dielectric's 4 % highlight under the
+//! earlier 17° sun left its roughness anywhere in 0.40-0.58 at an equal loss).
+//!
+//! **What is asserted, and why these bounds.** Measured on this seed (750 iterations of 4,096
+//! pixels at 16 spp, 16 cached sub-pixel positions, ~37 s): the floor's base colour within
+//! 1.2-2.7 % per channel ([0.611, 0.460, 0.308] for [0.6, 0.45, 0.3]) and its roughness 0.748
+//! (truth 0.8); the sphere's roughness 0.325 (truth 0.3), but its metallic only 0.73 of 1 (from
+//! 0.02; it was 0.71 after twice the iterations at a third of the rate, and 0.58 with an L2
+//! loss: the metal's blurred reflection of a smooth sky is partly matched by a diffuse lobe,
+//! and Adam's noisy steps settle slowly along that valley), which leaves its base colour
+//! 12-16 % low ([0.220, 0.348, 0.587] for [0.25, 0.4, 0.7]); the environments 70.7 and 68.3 dB
+//! over the upper hemisphere after a global scale (peak = the sun). The issue's 2 % on base
+//! colour holds for the floor within 0.7 %, not for the sphere; 0.05 on roughness holds. The
+//! bounds are those figures with a margin, all far from the grey start (0.5 everywhere, up to
+//! 100 % off; metallic 0.02, roughness 0.7): floor base colour 4 %, sphere 25 %, sphere
+//! roughness within 0.06 and metallic above 0.6, floor roughness within 0.1, environments 60 dB.
 
 use glam::Vec3;
 use lightfuse::io::dataset::Observation;
@@ -31,17 +40,19 @@ use surfel_scenes::{camera, floor, mat, scene_of, sphere};
 const FLOOR: [f32; 3] = [0.6, 0.45, 0.3];
 const BALL: [f32; 3] = [0.25, 0.4, 0.7];
 const BALL_ROUGHNESS: f32 = 0.3;
-const EW: usize = 32;
-const EH: usize = 16;
+const FLOOR_ROUGHNESS: f32 = 0.8;
+const EW: usize = 64;
+const EH: usize = 32;
 
-/// A smooth sky: a vertical gradient, a coloured horizon band and a bright sun at `sun`.
+/// A smooth sky: a vertical gradient, a coloured horizon band and a small bright sun at `sun`
+/// (cos²⁵⁶: ~4° across).
 fn sky(sun: Vec3, tint: [f32; 3]) -> Environment {
     let px = (0..EW * EH)
         .map(|i| {
             let (x, y) = (i % EW, i / EW);
             let d = uv_to_direction([(x as f32 + 0.5) / EW as f32, (y as f32 + 0.5) / EH as f32]);
             let up = d.y.max(0.0);
-            let sunny = (d.dot(sun).max(0.0)).powi(16) * 12.0;
+            let sunny = (d.dot(sun).max(0.0)).powi(256) * 150.0;
             [0, 1, 2].map(|c| (0.3 + 0.7 * up) * tint[c] + sunny + 0.1)
         })
         .collect();
@@ -55,8 +66,8 @@ struct Truth {
 
 fn truth() -> Truth {
     let mut scene = scene_of(vec![
-        floor(-0.5, 1.6, 0.08, mat(FLOOR, 0.0, 0.8)),
-        sphere(Vec3::ZERO, 0.45, 1500, mat(BALL, 0.0, BALL_ROUGHNESS)),
+        floor(-0.5, 1.6, 0.08, mat(FLOOR, 0.0, FLOOR_ROUGHNESS)),
+        sphere(Vec3::ZERO, 0.45, 1500, mat(BALL, 1.0, BALL_ROUGHNESS)),
     ]);
     let mut second = scene.states[0].clone();
     second.name = "state1".into();
@@ -74,18 +85,22 @@ fn truth() -> Truth {
     }
 }
 
-/// `cam` turned up by `deg` about its x axis (it then sees the sky above the horizon).
-fn pitched(mut cam: lightfuse::scene::Camera, deg: f32) -> lightfuse::scene::Camera {
-    let (s, c) = deg.to_radians().sin_cos();
+/// `cam` turned about the world's vertical by `yaw` degrees after being pitched up by `pitch`
+/// degrees about its own x axis: R = R_y(yaw) R_x(pitch).
+fn oriented(mut cam: lightfuse::scene::Camera, yaw: f32, pitch: f32) -> lightfuse::scene::Camera {
+    let r = glam::Mat3::from_rotation_y(yaw.to_radians())
+        * glam::Mat3::from_rotation_x(pitch.to_radians());
     let m = &mut cam.transform_matrix;
-    m[1][1] = c;
-    m[1][2] = -s;
-    m[2][1] = s;
-    m[2][2] = c;
+    for (i, row) in m.iter_mut().take(3).enumerate() {
+        for (j, v) in row.iter_mut().take(3).enumerate() {
+            *v = r.col(j)[i];
+        }
+    }
     cam
 }
 
-/// Captures: `views` cameras per state, 32x32, rendered at 128 spp, with planar depth.
+/// Captures: eight cameras per state (three 48x48 of the objects, five 32x32 of the sky), rendered
+/// at 128 spp, with planar depth.
 fn captures(t: &Truth) -> Vec<Vec<Observation>> {
     let trace = TraceScene::new(&t.scene);
     let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
@@ -97,37 +112,49 @@ fn captures(t: &Truth) -> Vec<Vec<Observation>> {
             let placed = trace.place_state(st);
             let map = EnvMap::new(&t.envs[k], 0.0);
             let est = Estimator::new(&placed, &map, self_hit_epsilon(&t.scene, st));
-            [
-                (-0.7f32, 0.0f32),
-                (0.0, 0.0),
-                (0.7, 0.0),
-                (-0.4, 40.0),
-                (0.4, 40.0),
-            ]
-            .iter()
-            .enumerate()
-            .map(|(v, &(x, pitch))| {
-                let cam = pitched(camera(Vec3::new(x, 0.2, 2.4), 32, 32, 22.0), pitch);
-                let pixels: Vec<_> = (0..32 * 32)
-                    .map(|i| est.pixel(&cam, &filter, (i % 32, i / 32), 128, 77))
-                    .collect();
-                Observation {
-                    state: k,
-                    view: v,
-                    camera: cam,
-                    rgb: pixels.iter().map(|p| p.rgb).collect(),
-                    depth: pixels.iter().map(|p| p.depth).collect(),
-                    normal: pixels.iter().map(|p| p.normal).collect(),
-                    mask: vec![0; 32 * 32],
-                }
-            })
-            .collect()
+            // Three views of the objects, and five of the sky from above the floor: one
+            // straight up (~120° across) and four at 25° in the four compass directions (~90°
+            // across), so every direction above the horizon is seen and the captures, not the
+            // optimiser's prior, decide the environment (and with it the albedos' scale).
+            let objects = [-0.7f32, 0.0, 0.7].map(|x| (Vec3::new(x, 0.2, 2.4), 0.0, 0.0, 40.0, 48));
+            let up = Vec3::new(0.0, 0.8, 0.0);
+            let sky = [
+                (up, 0.0, 90.0, 9.0, 32),
+                (up, 0.0, 25.0, 16.0, 32),
+                (up, 90.0, 25.0, 16.0, 32),
+                (up, 180.0, 25.0, 16.0, 32),
+                (up, 270.0, 25.0, 16.0, 32),
+            ];
+            objects
+                .iter()
+                .chain(&sky)
+                .enumerate()
+                .map(|(v, &(eye, yaw, pitch, fl, size))| {
+                    let cam = oriented(camera(eye, size, size, fl), yaw, pitch);
+                    let pixels: Vec<_> = (0..size * size)
+                        .map(|i| est.pixel(&cam, &filter, (i % size, i / size), 128, 77))
+                        .collect();
+                    Observation {
+                        state: k,
+                        view: v,
+                        camera: cam,
+                        rgb: pixels.iter().map(|p| p.rgb).collect(),
+                        depth: pixels.iter().map(|p| p.depth).collect(),
+                        normal: pixels.iter().map(|p| p.normal).collect(),
+                        mask: vec![0; (size * size) as usize],
+                    }
+                })
+                .collect()
         })
         .collect()
 }
 
 /// Per part, the mean base colour and roughness the pixels' centre rays see, over every view.
-fn seen_materials(scene: &Scene, obs: &[Vec<Observation>], part: usize) -> ([f64; 3], f64, usize) {
+fn seen_materials(
+    scene: &Scene,
+    obs: &[Vec<Observation>],
+    part: usize,
+) -> ([f64; 3], f64, f64, usize) {
     // Trace only the part's surfels: its pixels are those where it is hit.
     let only: Vec<Surfels> = scene
         .components
@@ -143,7 +170,7 @@ fn seen_materials(scene: &Scene, obs: &[Vec<Observation>], part: usize) -> ([f64
         .collect();
     let refs: Vec<&Surfels> = only.iter().collect();
     let trace = TraceScene::from_components(&refs);
-    let (mut bc, mut r, mut n) = ([0.0f64; 3], 0.0f64, 0usize);
+    let (mut bc, mut r, mut m, mut n) = ([0.0f64; 3], 0.0f64, 0.0f64, 0usize);
     for (k, views) in obs.iter().enumerate() {
         let placed = trace.place_state(&scene.states[k]);
         for o in views {
@@ -157,6 +184,7 @@ fn seen_materials(scene: &Scene, obs: &[Vec<Observation>], part: usize) -> ([f64
                             bc[c] += b[c] as f64;
                         }
                         r += rec.mean_roughness() as f64;
+                        m += rec.mean_metallic() as f64;
                         n += 1;
                     }
                 }
@@ -164,7 +192,7 @@ fn seen_materials(scene: &Scene, obs: &[Vec<Observation>], part: usize) -> ([f64
         }
     }
     let k = n.max(1) as f64;
-    (bc.map(|v| v / k), r / k, n)
+    (bc.map(|v| v / k), r / k, m / k, n)
 }
 
 /// PSNR of `got` against `want` over the upper hemisphere after the least-squares global scale,
@@ -216,14 +244,17 @@ fn recovers_known_materials_and_environments() {
         .map(|s| initial_environment(&s.views, EW, EH))
         .collect();
     let settings = Settings {
-        iterations: 500,
-        pixels: 1024,
-        lighting_until: 50,
-        base_color_until: 200,
-        spp: 4,
-        spp_schedule: SppSchedule::Paper,
+        iterations: 750,
+        pixels: 4096,
+        lighting_until: 15,
+        base_color_until: 75,
+        lr_roughness: 0.1,
+        lr_metallic: 0.3,
+        spp: 16,
+        spp_schedule: SppSchedule::Fixed8,
         env_width: EW as u32,
         env_height: EH as u32,
+        primary_jitters: 16,
         ..Settings::fast()
     };
     let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
@@ -241,32 +272,39 @@ fn recovers_known_materials_and_environments() {
     for (c, s) in scene.components.iter_mut().zip(&surfels) {
         c.surfels = s.clone();
     }
-    let (floor_bc, _, nf) = seen_materials(&scene, &obs, 0);
-    let (ball_bc, ball_r, nb) = seen_materials(&scene, &obs, 1);
+    let (floor_bc, floor_r, floor_m, nf) = seen_materials(&scene, &obs, 0);
+    let (ball_bc, ball_r, ball_m, nb) = seen_materials(&scene, &obs, 1);
     let psnr: Vec<f64> = (0..2)
         .map(|k| env_psnr(&inv.environment(k, "e"), &t.envs[k]))
         .collect();
     println!(
-        "L1 {:.4} -> {last:.4}; floor {floor_bc:.3?} ({nf} px) vs {FLOOR:?}; ball {ball_bc:.3?} r {ball_r:.3} ({nb} px) vs {BALL:?} r {BALL_ROUGHNESS}; env PSNR {psnr:.1?} dB",
+        "L1 {:.4} -> {last:.4}; floor {floor_bc:.3?} r {floor_r:.3} m {floor_m:.3} ({nf} px) \
+         vs {FLOOR:?}; ball {ball_bc:.3?} r {ball_r:.3} m {ball_m:.3} ({nb} px) vs {BALL:?} \
+         r {BALL_ROUGHNESS}; env PSNR {psnr:.1?} dB",
         first.unwrap()
     );
     for c in 0..3 {
         let ef = (floor_bc[c] / FLOOR[c] as f64 - 1.0).abs();
         let eb = (ball_bc[c] / BALL[c] as f64 - 1.0).abs();
         assert!(
-            ef < 0.3,
+            ef < 0.04,
             "floor base colour channel {c}: {floor_bc:?} vs {FLOOR:?}"
         );
         assert!(
-            eb < 0.3,
+            eb < 0.25,
             "ball base colour channel {c}: {ball_bc:?} vs {BALL:?}"
         );
     }
     assert!(
-        ball_r < 0.65,
+        (ball_r - BALL_ROUGHNESS as f64).abs() < 0.06,
         "ball roughness {ball_r} (from 0.7 toward {BALL_ROUGHNESS})"
     );
+    assert!(ball_m > 0.6, "ball metallic {ball_m} (from 0.02 toward 1)");
+    assert!(
+        (floor_r - FLOOR_ROUGHNESS as f64).abs() < 0.1,
+        "floor roughness {floor_r} (truth {FLOOR_ROUGHNESS})"
+    );
     for p in psnr {
-        assert!(p > 15.0, "environment PSNR {p} dB");
+        assert!(p > 60.0, "environment PSNR {p} dB");
     }
 }

@@ -2,7 +2,8 @@
 //! replayed estimate is exactly linear in the texels and affine in the base colour; the adjoint
 //! matches central finite differences of the *replayed* estimate (same seed, decisions frozen)
 //! for base colour, metallic, roughness and texels (at a pole and across the seam included); the
-//! dot-product identity holds; a path that contributes nothing gets no gradient.
+//! dot-product identity holds; a path that contributes nothing gets no gradient; a walk started
+//! from a kept primary record (stage 3's cache) is the traced walk.
 //!
 //! The objective is J = Σ_paths ⟨ȳ_p, L_p⟩ with fixed random ȳ_p, over every path sample of a
 //! small image of a floor and a sphere whose surfels each have their own material.
@@ -196,6 +197,14 @@ fn forward_is_the_sum_of_the_replayed_terms() {
         let r = est.radiance(o, d, &s, i);
         assert_eq!(r.radiance, p.radiance(&map));
         assert_eq!(r.rays, p.rays);
+        // Stage 3's cached start: the same walk from the camera ray's kept record, bit for
+        // bit, minus the camera ray itself.
+        let ray = p.camera;
+        let kept = placed.composite(ray.origin, ray.dir, ray.t_min, ray.t_max);
+        let q = est.replay_from(ray, kept, &s, i);
+        assert_eq!(q.terms(), p.terms());
+        assert_eq!(q.continuation, p.continuation);
+        assert_eq!(q.rays + 1, p.rays);
     }
 }
 

@@ -469,10 +469,11 @@ fn brdf_white_furnace() {
         metallic,
         roughness,
     };
+    // One Sobol stream holds at most MAX_SAMPLES (2^16) samples.
     let n_mc = if cfg!(debug_assertions) {
         20_000
     } else {
-        200_000
+        lightfuse::shade::sobol::MAX_SAMPLES
     };
     let albedo_quad = |m: &Material, cos_o: f64, lobe: usize| {
         let wo = view(cos_o);

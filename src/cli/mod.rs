@@ -83,6 +83,11 @@ pub struct InvertArgs {
     /// estimation, no MIS: the paper's Table 4 baseline).
     #[arg(long, default_value = "full")]
     pub estimator: String,
+    /// Sub-pixel positions per training pixel whose primary records are traced once and
+    /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
+    /// memory in proportion (the report states it).
+    #[arg(long)]
+    pub primary_jitters: Option<u32>,
     /// Evaluation: samples per pixel, and every N-th pixel in x and y of each view.
     #[arg(long, default_value_t = 16)]
     pub eval_spp: u32,
@@ -709,6 +714,14 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
             "--eval-spp and --eval-stride: expected at least 1".into(),
         ));
     }
+    if let Some(j) = a.primary_jitters {
+        if j == 0 {
+            return Err(Error::Usage(
+                "--primary-jitters: expected at least 1".into(),
+            ));
+        }
+        settings.primary_jitters = j;
+    }
     let report = invert::invert(&invert::Options {
         dataset: a.dataset.clone(),
         work: a.work.clone(),
@@ -732,14 +745,24 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
             report.iterations,
             report.seconds
         );
+        let split = |f: &crate::stages::invert::run::ImageFigures| {
+            let db = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+            format!(
+                "surface {} / sky {}",
+                db(f.psnr_srgb_surface_db),
+                db(f.psnr_srgb_background_db)
+            )
+        };
         for s in &report.states {
             eprintln!(
-                "  {}: training views {:.2} dB HDR / {:.2} dB sRGB; held-out {:.2} / {:.2} dB",
+                "  {}: training views {:.2} dB HDR / {:.2} dB sRGB ({}); held-out {:.2} / {:.2} dB ({})",
                 s.state,
                 s.training.psnr_hdr_db,
                 s.training.psnr_srgb_db,
+                split(&s.training),
                 s.heldout.psnr_hdr_db,
-                s.heldout.psnr_srgb_db
+                s.heldout.psnr_srgb_db,
+                split(&s.heldout)
             );
         }
     }

@@ -222,15 +222,30 @@ impl<'a> Estimator<'a> {
         sampler: &Sampler,
         index: u32,
     ) -> PathReplay {
-        let record = self.scene.composite(origin, dir, 0.0, f32::INFINITY);
         let camera = TraceRay {
             origin,
             dir,
             t_min: 0.0,
             t_max: f32::INFINITY,
         };
+        let record = self.scene.composite(origin, dir, 0.0, f32::INFINITY);
+        let mut p = self.replay_from(camera, record, sampler, index);
+        p.rays += 1;
+        p
+    }
+
+    /// [`Estimator::replay`] from a camera ray whose record is already known (traced once and
+    /// kept, with its materials current: geometry alone decides it); the rays counted are the
+    /// ones traced here, without the camera ray.
+    pub fn replay_from(
+        &self,
+        camera: TraceRay,
+        record: SurfaceRecord,
+        sampler: &Sampler,
+        index: u32,
+    ) -> PathReplay {
         let mut p = PathReplay::new(camera, record);
-        let d = Vec3::from_array(dir);
+        let d = Vec3::from_array(camera.dir);
         let a = if record.hits == 0 {
             0.0
         } else {
@@ -523,6 +538,24 @@ impl PixelFilter {
         PixelFilter { inverse_cdf }
     }
 
+    /// Sample `index`'s camera ray through pixel (x, y): the filter-importance-sampled offset
+    /// from the pixel centre, drawn from `sampler`'s [`dim::PIXEL`] dimensions. Returns the ray's
+    /// origin and unit direction.
+    #[inline]
+    pub fn camera_ray(
+        &self,
+        camera: &Camera,
+        (x, y): (u32, u32),
+        sampler: &Sampler,
+        index: u32,
+    ) -> ([f32; 3], [f32; 3]) {
+        let [ux, uy] = sampler.get_2d(index, dim::PIXEL);
+        camera.ray(
+            x as f32 + 0.5 + self.offset(ux),
+            y as f32 + 0.5 + self.offset(uy),
+        )
+    }
+
     /// Offset from the pixel centre for a uniform `u ∈ [0, 1)`.
     #[inline]
     pub fn offset(&self, u: f32) -> f32 {
@@ -577,8 +610,7 @@ impl Estimator<'_> {
         let (cx, cy) = (x as f32 + 0.5, y as f32 + 0.5);
         let mut px = Pixel::default();
         for i in 0..spp {
-            let [ux, uy] = sampler.get_2d(i, dim::PIXEL);
-            let (o, d) = camera.ray(cx + filter.offset(ux), cy + filter.offset(uy));
+            let (o, d) = filter.camera_ray(camera, (x, y), &sampler, i);
             let p = self.radiance(o, d, &sampler, i);
             add_scaled(&mut px.rgb, p.radiance, 1.0);
             px.alpha += p.record.alpha;

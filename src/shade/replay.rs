@@ -126,7 +126,7 @@ impl PathReplay {
             record,
             continuation: None,
             materials: [NO_MATERIAL; 2],
-            rays: 1,
+            rays: 0,
             terms: [NO_TERM; MAX_TERMS],
             len: 0,
         }

@@ -28,7 +28,7 @@
 
 use super::batch::Hit;
 use super::placed::Placed;
-use super::record::RecordGrad;
+use super::record::{RecordGrad, WeightedHit};
 use crate::kernel::composite::{Back, Front};
 use crate::kernel::{quat_grad, MAX_OPACITY};
 use crate::scene::Surfels;
@@ -94,6 +94,42 @@ impl TraceSurfelGrads {
         acc(&mut self.base_color, &other.base_color);
         acc1(&mut self.metallic, &other.metallic);
         acc1(&mut self.roughness, &other.roughness);
+    }
+}
+
+/// dL/d(each surfel's stored material) for one component, by the component's surfel index: the
+/// material share of [`TraceSurfelGrads`], for callers whose geometry is fixed (stage 3).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MaterialGrads {
+    pub base_color: Vec<[f32; 3]>,
+    pub metallic: Vec<f32>,
+    pub roughness: Vec<f32>,
+}
+
+impl MaterialGrads {
+    pub fn zeros(n: usize) -> Self {
+        MaterialGrads {
+            base_color: vec![[0.0; 3]; n],
+            metallic: vec![0.0; n],
+            roughness: vec![0.0; n],
+        }
+    }
+}
+
+/// The material part of the adjoint of a record whose hits are known
+/// ([`Placed::composite_hits`]): its material sums are Σ w_j m_j with the weights fixed by the
+/// geometry, so dL/dm_j = w_j · dL/dΣ — what [`Placed::composite_backward`] sends to the
+/// materials, without re-deriving the weights or any geometry gradient. Adds into `out`, one
+/// entry per component.
+pub fn scatter_material_grad(hits: &[WeightedHit], g: &RecordGrad, out: &mut [MaterialGrads]) {
+    for h in hits {
+        let o = &mut out[h.component as usize];
+        let i = h.index as usize;
+        for k in 0..3 {
+            o.base_color[i][k] += h.w * g.base_color[k];
+        }
+        o.metallic[i] += h.w * g.metallic;
+        o.roughness[i] += h.w * g.roughness;
     }
 }
 
@@ -212,6 +248,43 @@ impl Placed<'_> {
                     rotation: [t[3], t[4], t[5]],
                 })
                 .collect(),
+        }
+    }
+
+    /// The material part of [`Placed::composite_backward`] alone (geometry fixed): each ray is
+    /// traced again for its hits and weights and [`scatter_material_grad`] applied, in ray
+    /// order (deterministic for any thread count). Adds into `out`, one entry per component
+    /// (e.g. [`MaterialGrads::zeros`] of each component's surfel count).
+    pub fn material_backward(
+        &self,
+        rays: &[TraceRay],
+        grads: &[RecordGrad],
+        out: &mut [MaterialGrads],
+    ) {
+        assert_eq!(rays.len(), grads.len(), "one RecordGrad per ray");
+        assert_eq!(
+            out.len(),
+            self.scene.blas.len(),
+            "material_backward: one MaterialGrads per component"
+        );
+        // Per chunk: every ray's hits, and where each ray's start (then scattered in order).
+        let chunks: Vec<(Vec<WeightedHit>, Vec<usize>)> = rays
+            .par_chunks(RAY_CHUNK)
+            .map(|rays| {
+                let mut hits = Vec::new();
+                let mut starts = Vec::with_capacity(rays.len() + 1);
+                for r in rays {
+                    starts.push(hits.len());
+                    self.composite_hits(r.origin, r.dir, r.t_min, r.t_max, &mut hits);
+                }
+                starts.push(hits.len());
+                (hits, starts)
+            })
+            .collect();
+        for ((hits, starts), grads) in chunks.iter().zip(grads.chunks(RAY_CHUNK)) {
+            for (r, g) in grads.iter().enumerate() {
+                scatter_material_grad(&hits[starts[r]..starts[r + 1]], g, out);
+            }
         }
     }
 

@@ -1,7 +1,7 @@
 //! The top level: components placed by rigid transforms, and the two ray queries.
 
 use super::batch::{before, Hit, HitBatch};
-use super::record::SurfaceRecord;
+use super::record::{SurfaceRecord, WeightedHit};
 use super::scene::TraceScene;
 use super::T_MIN;
 use crate::scene::Rigid;
@@ -93,6 +93,33 @@ impl<'a> Placed<'a> {
         t_min: f32,
         t_max: f32,
     ) -> SurfaceRecord {
+        self.composite_visit(origin, dir, t_min, t_max, |_| {})
+    }
+
+    /// [`Placed::composite`], also appending every composited hit's surfel and weight to `hits`
+    /// (front to back): what a record's material sums are made of, so they can be recomputed
+    /// for other materials ([`SurfaceRecord::set_materials`]) and differentiated
+    /// ([`super::scatter_material_grad`]) without tracing again.
+    pub fn composite_hits(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        hits: &mut Vec<WeightedHit>,
+    ) -> SurfaceRecord {
+        self.composite_visit(origin, dir, t_min, t_max, |h| hits.push(h))
+    }
+
+    #[inline]
+    fn composite_visit(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        mut visit: impl FnMut(WeightedHit),
+    ) -> SurfaceRecord {
         let o = Vec3::from_array(origin);
         let d = Vec3::from_array(dir);
         let mut record = SurfaceRecord::default();
@@ -105,6 +132,11 @@ impl<'a> Placed<'a> {
             }
             let x = o + h.t * d;
             record.add(w, h.t, x.to_array(), n.to_array(), &blas.material[slot]);
+            visit(WeightedHit {
+                component: c as u32,
+                index: blas.index[slot],
+                w,
+            });
         });
         record
     }

@@ -1,5 +1,6 @@
 //! What compositing along a ray yields (eq. surface-record).
 
+use crate::scene::Surfels;
 use crate::shade::brdf::Material;
 
 /// Front-to-back composite of the hits along one ray (eq. surface-record). The fields are the
@@ -84,6 +85,37 @@ impl SurfaceRecord {
 
     pub fn mean_roughness(&self) -> f32 {
         self.roughness * self.per_alpha()
+    }
+}
+
+/// One hit a record composited: the surfel (its component, and its index in that component's
+/// [`Surfels`]) and its weight `w = T α` (eq. surface-record).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WeightedHit {
+    pub component: u32,
+    pub index: u32,
+    pub w: f32,
+}
+
+impl SurfaceRecord {
+    /// Recomputes the material sums (Σ w a, Σ w m, Σ w r) from the record's hits and the
+    /// surfels' current materials; geometry, `alpha` and `hits` stay. With the hits
+    /// [`super::Placed::composite_hits`] returned and unchanged materials, the record is the one
+    /// `composite` returns (up to the order of float additions, which is the same).
+    pub fn set_materials(&mut self, hits: &[WeightedHit], components: &[&Surfels]) {
+        let (mut a, mut m, mut r) = ([0.0f32; 3], 0.0f32, 0.0f32);
+        for h in hits {
+            let s = components[h.component as usize];
+            let i = h.index as usize;
+            for (a, c) in a.iter_mut().zip(s.base_color[i]) {
+                *a += h.w * c;
+            }
+            m += h.w * s.metallic[i];
+            r += h.w * s.roughness[i];
+        }
+        self.base_color = a;
+        self.metallic = m;
+        self.roughness = r;
     }
 }
 

@@ -5,9 +5,10 @@
 //! HDR environment) by differentiating the one-bounce path tracer that later relights the
 //! scene, with path replay backpropagation ([`crate::shade::replay`]).
 //!
-//! [`train`] is the loop, [`run`] reads the refined scene and writes `relightable.glb` /
+//! [`train`] is the loop over [`cache`]'s primary records, [`run`] reads the refined scene and writes `relightable.glb` /
 //! `relightable.usda` with a report.
 
+pub mod cache;
 pub mod run;
 pub mod train;
 

@@ -2,6 +2,7 @@
 //! warning when stage 2 has not run) and the dataset's captures to `<work>/relightable.glb`,
 //! `<work>/relightable.usda` and `<work>/invert/{report.json, log.jsonl, checkpoint.json}`.
 
+use super::cache::{CacheFigures, PrimaryCache};
 use super::train::{initial_environment, Inverter, Losses, Settings, TrainState};
 use crate::error::{Error, Result};
 use crate::eval::lighting::{
@@ -52,6 +53,13 @@ pub struct ImageFigures {
     pub psnr_hdr_db: f64,
     /// PSNR after clamping to [0, 1] and sRGB encoding.
     pub psnr_srgb_db: f64,
+    /// The same sRGB PSNR over the pixels where the capture sees a surface (depth > 0) and
+    /// where it sees the environment: which of the two an error comes from (e.g. a held-out
+    /// view looking at sky no training view saw). `None` when there are no such pixels.
+    #[serde(default)]
+    pub psnr_srgb_surface_db: Option<f64>,
+    #[serde(default)]
+    pub psnr_srgb_background_db: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -74,6 +82,9 @@ pub struct Report {
     pub iterations: u32,
     pub seconds: f64,
     pub surfels: usize,
+    /// The training pixels' primary records, traced once ([`PrimaryCache`]): its size and
+    /// cost (absent when a resumed run had nothing left to train).
+    pub primary_cache: Option<CacheFigures>,
     pub states: Vec<StateReport>,
     /// Base colour at the pixel centres of the evaluated training views against the dataset's
     /// albedo pass, on pixels both call surface ([`crate::eval::lighting::compare_albedo`]).
@@ -179,6 +190,7 @@ fn image_figures(
 ) -> ImageFigures {
     let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
     let mut pairs: Vec<([f32; 3], [f32; 3])> = Vec::new();
+    let mut on_surface: Vec<bool> = Vec::new();
     for (vi, o) in views.iter().enumerate() {
         let cam = &o.camera;
         let coords: Vec<(u32, u32)> = (0..cam.h)
@@ -193,6 +205,7 @@ fn image_figures(
         for ((x, y), p) in coords.iter().zip(rendered) {
             let i = (y * cam.w + x) as usize;
             pairs.push((p.rgb, o.rgb[i]));
+            on_surface.push(o.depth[i] > 0.0);
             if let Some((g, albedo)) = gather.as_mut() {
                 let surface = p.depth > 0.0 && o.depth[i] > 0.0;
                 if let Some(truth) = &albedo[vi] {
@@ -216,11 +229,22 @@ fn image_figures(
         .fold(0.0, f64::max)
         .max(1e-6);
     let (a, b): (Vec<[f32; 3]>, Vec<[f32; 3]>) = pairs.iter().copied().unzip();
+    let part = |want: bool| {
+        let (pa, pb): (Vec<[f32; 3]>, Vec<[f32; 3]>) = pairs
+            .iter()
+            .zip(&on_surface)
+            .filter(|(_, &s)| s == want)
+            .map(|(p, _)| *p)
+            .unzip();
+        (!pa.is_empty()).then(|| psnr_srgb(&pa, &pb))
+    };
     ImageFigures {
         views: views.iter().map(|o| o.view).collect(),
         pixels: pairs.len(),
         psnr_hdr_db: psnr_peak(&pairs, peak),
         psnr_srgb_db: psnr_srgb(&a, &b),
+        psnr_srgb_surface_db: part(true),
+        psnr_srgb_background_db: part(false),
     }
 }
 
@@ -360,6 +384,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
         iterations: c.inverter.iteration,
         seconds: t0.elapsed().as_secs_f64(),
         surfels: out.surfel_count(),
+        primary_cache: c.inverter.cache().map(PrimaryCache::figures),
         states: Vec::new(),
         albedo: None,
         materials: Vec::new(),

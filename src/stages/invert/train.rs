@@ -6,13 +6,18 @@
 //!
 //! **One iteration.** One training image is drawn (state k, view v); `pixels` of its pixels are
 //! drawn with replacement; each is rendered with `spp` path samples of the Sobol stream of its
-//! pixel id under a per-iteration seed (the same filter-importance-sampled camera rays the
-//! renderer uses), giving L_p. The loss is L_IR = mean |L_p − I_p| over pixels and channels
-//! (L1 on scene-linear HDR) + λ_E TV(E_k) ([`crate::optim::env_tv`]). Its gradient
-//! sign(L_p − I_p)/(3N) is sent back by *replaying* each sample (no tape: the same sample is
-//! traced again, [`crate::shade::estimator::Estimator::replay`]) and taking its adjoint: into
-//! E_k's texels directly, into the records' mean materials and, through the compositing weights
-//! w_j ([`crate::trace::Placed::composite_backward`]), into each hit surfel's material.
+//! pixel id, giving L_p. Every sample starts at a primary record traced once for the whole run
+//! ([`super::cache`]: geometry and poses are fixed, so the camera rays' hits and weights never
+//! change; sample i uses the pixel's sub-pixel position i mod `primary_jitters`) with its
+//! material sums rebuilt from the current materials. The loss is L_IR = mean |L_p − I_p| over
+//! pixels and channels (L1 on scene-linear HDR) + λ_E TV(E_k) ([`crate::optim::env_tv`]). Its
+//! gradient sign(L_p − I_p)/(3N) is sent back by *replaying* samples (no tape: a sample is
+//! walked again, [`crate::shade::estimator::Estimator::replay_from`]) and taking their adjoint:
+//! into E_k's texels directly, into the records' mean materials and, through the compositing
+//! weights w_j, into each hit surfel's material (the primary record's kept hits,
+//! [`crate::trace::scatter_material_grad`]; the continuation's traced again,
+//! [`crate::trace::Placed::material_backward`]). The replay draws an independent sample set
+//! (Mitsuba's `seed_grad`), so the sign is not correlated with the samples it weights.
 //!
 //! **Parameters** ([`Inverter`]): per surfel the logits of base colour, metallic and roughness
 //! (activated by a sigmoid, so they stay in (0, 1)); per training state ρ = ln E per texel and
@@ -21,18 +26,20 @@
 //! E_k each iteration and held fixed within it (detached sampling, see the replay module).
 //!
 //! **Schedule** (paper § Experimental setup): lighting only before `lighting_until`, then base
-//! colour too before `base_color_until`, then everything; spp from `spp` doubling at half the
+//! colour too before `base_color_until`, then everything, each group's learning rate decaying
+//! over its phase ([`Settings::lr_at`]); spp from `spp` doubling at half the
 //! iterations and again at 80 % ([`SppSchedule::Paper`], the paper's 8/16/32 at 7,500 and
 //! 12,000 of 15,000), or fixed, or capped at twice the start (Table 4's `fixed8`, `max16`).
 
+use super::cache::PrimaryCache;
 use crate::io::dataset::Observation;
 use crate::optim::{env_tv, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Environment, Rigid, Surfels};
 use crate::shade::envmap::{direction_to_uv, EnvMap};
-use crate::shade::estimator::{Estimator, PixelFilter, Strategy, DEFAULT_FILTER_WIDTH};
+use crate::shade::estimator::{Estimator, Strategy};
 use crate::shade::Sampler;
-use crate::trace::{RecordGrad, TraceRay, TraceScene};
+use crate::trace::{scatter_material_grad, MaterialGrads, RecordGrad, TraceRay, TraceScene};
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -86,13 +93,28 @@ pub struct Settings {
     pub lr_base_color: f32,
     pub lr_metallic: f32,
     pub lr_roughness: f32,
+    /// Each learning rate's factor at the end of its phase ([`Settings::lr_at`]).
+    #[serde(default = "no_decay")]
+    pub lr_decay: f32,
     /// λ_E of eq. training-objectives.
     pub lambda_tv: f32,
     /// Initial material (activated values).
     pub init_base_color: f32,
     pub init_metallic: f32,
     pub init_roughness: f32,
+    /// Sub-pixel positions per training pixel whose primary records are traced once and
+    /// reused ([`PrimaryCache`]); sample i uses position i mod this.
+    #[serde(default = "one")]
+    pub primary_jitters: u32,
     pub seed: u64,
+}
+
+fn one() -> u32 {
+    1
+}
+
+fn no_decay() -> f32 {
+    1.0
 }
 
 impl Settings {
@@ -113,23 +135,25 @@ impl Settings {
             lr_base_color: 0.05,
             lr_metallic: 0.03,
             lr_roughness: 0.03,
+            lr_decay: 0.1,
             lambda_tv: 0.01,
             init_base_color: 0.5,
             init_metallic: 0.02,
             init_roughness: 0.7,
+            primary_jitters: 1,
             seed: 0,
         }
     }
 
-    /// The paper's stage fractions scaled to minutes on this 2-core machine for the demo: 600
-    /// iterations of 4,096 pixels at 2 → 4 → 8 spp (lighting only to 80, + base colour to
-    /// 360), with learning rates raised for the shorter run.
+    /// The paper's stage fractions scaled to minutes on this 2-core machine for the demo: 2,000
+    /// iterations of 4,096 pixels at 2 → 4 → 8 spp (lighting only to 267, + base colour to
+    /// 1,200), with learning rates raised for the shorter run.
     pub fn fast() -> Settings {
         Settings {
-            iterations: 600,
+            iterations: 2_000,
             pixels: 4_096,
-            lighting_until: 80,
-            base_color_until: 360,
+            lighting_until: 267,
+            base_color_until: 1_200,
             spp: 2,
             lr_env: 0.05,
             lr_base_color: 0.08,
@@ -137,6 +161,17 @@ impl Settings {
             lr_roughness: 0.05,
             ..Settings::paper()
         }
+    }
+
+    /// The learning rate at iteration `it` of a group trained from `start` with rate `base`:
+    /// decaying exponentially over its phase, from `base` at `start` to `base · lr_decay` at
+    /// the last iteration. Adam's steps on noisy gradients wander about the optimum by about
+    /// the learning rate; the decay lets the run settle (with a constant rate the roughness
+    /// of `tests/invert.rs`'s sphere ended anywhere in 0.40-0.47 for a truth of 0.3).
+    pub fn lr_at(&self, base: f32, start: u32, it: u32) -> f32 {
+        let span = self.iterations.saturating_sub(start).max(1) as f32;
+        let s = (it.saturating_sub(start) as f32 / span).clamp(0.0, 1.0);
+        base * self.lr_decay.powf(s)
     }
 
     /// Samples per pixel at iteration `it`.
@@ -201,7 +236,14 @@ pub struct Inverter {
     pub adam: Adam,
     pub iteration: u32,
     rng: u64,
+    /// The training pixels' primary records, traced at the first step (and again after a
+    /// resume: it is a function of the geometry, the views and the settings alone).
+    #[serde(skip)]
+    cache: Option<PrimaryCache>,
 }
+
+/// Mixed into the settings' seed for the cache's sub-pixel positions.
+const JITTER_SEED: u32 = 0x5eed_0f1e;
 
 /// Rays per parallel work item of the adjoint: fixed, so the scatter order (and the result)
 /// does not depend on the thread count.
@@ -273,7 +315,13 @@ impl Inverter {
             envs,
             adam,
             iteration: 0,
+            cache: None,
         }
+    }
+
+    /// The primary-record cache, once the first step has traced it.
+    pub fn cache(&self) -> Option<&PrimaryCache> {
+        self.cache.as_ref()
     }
 
     /// Extends (or shortens) the run, e.g. when resuming with more iterations.
@@ -330,12 +378,28 @@ impl Inverter {
             .flat_map(|(k, st)| (0..st.views.len()).map(move |v| (k, v)))
             .collect();
         assert!(!images.is_empty(), "stage 3 needs training views");
-        let (k, v) = images[(self.next() % images.len() as u64) as usize];
+        let image = (self.next() % images.len() as u64) as usize;
+        let (k, v) = images[image];
         let obs = states[k].views[v];
         let cam = &obs.camera;
         let npix = (cam.w * cam.h) as u64;
         let pixels: Vec<u32> = (0..s.pixels).map(|_| (self.next() % npix) as u32).collect();
+        // Two independent sample sets, as Mitsuba's `seed` and `seed_grad`: the loss's gradient
+        // sign(I - T) comes from the first, the replayed derivative dI/dθ from the second. With
+        // one set, the sign is correlated with the very samples differentiated (a bright noisy
+        // sample both flips the sign and carries the largest derivative), and the expected
+        // gradient vanishes at a biased fit.
         let seed = (self.next() & 0xffff_ffff) as u32;
+        let seed_grad = (self.next() & 0xffff_ffff) as u32;
+        if self.cache.is_none() {
+            self.cache = Some(PrimaryCache::build(
+                trace,
+                states,
+                s.primary_jitters.max(1),
+                (s.seed & 0xffff_ffff) as u32 ^ JITTER_SEED,
+            ));
+        }
+        let cache = self.cache.as_ref().expect("built above");
 
         self.write_materials(surfels);
         let refs: Vec<&Surfels> = surfels.iter().collect();
@@ -344,14 +408,9 @@ impl Inverter {
         let env = self.environment(k, "");
         let map = EnvMap::new(&env, 0.0);
         let est = Estimator::new(&placed, &map, states[k].eps).with_strategy(s.estimator);
-        let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
-        let ray_of = |p: u32, i: u32, sampler: &Sampler| {
-            let (x, y) = (p % cam.w, p / cam.w);
-            let [ux, uy] = sampler.get_2d(i, crate::shade::estimator::dim::PIXEL);
-            cam.ray(
-                x as f32 + 0.5 + filter.offset(ux),
-                y as f32 + 0.5 + filter.offset(uy),
-            )
+        let sample = |p: u32, i: u32, sampler: &Sampler| {
+            let (ray, rec) = cache.record(cache.entry(image, p, i), &refs);
+            est.replay_from(ray, rec, sampler, i)
         };
 
         // Forward: each pixel's estimate.
@@ -362,8 +421,7 @@ impl Inverter {
                 let sampler = Sampler::new(p, seed);
                 let mut acc = [0.0f32; 3];
                 for i in 0..spp {
-                    let (o, d) = ray_of(p, i, &sampler);
-                    let r = est.radiance(o, d, &sampler, i).radiance;
+                    let r = sample(p, i, &sampler).radiance(&map);
                     for c in 0..3 {
                         acc[c] += r[c];
                     }
@@ -387,10 +445,13 @@ impl Inverter {
             .collect();
         let l1 = (l1 / (3.0 * n)) as f32;
 
-        // Adjoint: replay every sample (path replay; nothing was kept from the forward pass).
+        // Adjoint: replay every sample under the second seed (path replay: nothing was kept
+        // from the forward pass but the cached primary records).
         let materials_on = it >= s.lighting_until;
         struct ChunkOut {
             texels: Vec<(u32, [f32; 3])>,
+            /// Primary records' gradients, by cache entry.
+            primary: Vec<(usize, RecordGrad)>,
             rays: Vec<TraceRay>,
             grads: Vec<RecordGrad>,
         }
@@ -400,17 +461,21 @@ impl Inverter {
             .map(|(ps, ys)| {
                 let mut out = ChunkOut {
                     texels: Vec::new(),
+                    primary: Vec::new(),
                     rays: Vec::new(),
                     grads: Vec::new(),
                 };
                 for (&p, &yb) in ps.iter().zip(ys) {
-                    let sampler = Sampler::new(p, seed);
+                    let sampler = Sampler::new(p, seed_grad);
                     for i in 0..spp {
-                        let (o, d) = ray_of(p, i, &sampler);
-                        let path = est.replay(o, d, &sampler, i);
+                        let path = sample(p, i, &sampler);
                         let mg = path.adjoint(&map, yb, |t, g| out.texels.push((t as u32, g)));
                         if materials_on {
-                            for (ray, g) in path.record_grads(&mg).into_iter().flatten() {
+                            let [primary, secondary] = path.record_grads(&mg);
+                            if let Some((_, g)) = primary {
+                                out.primary.push((cache.entry(image, p, i), g));
+                            }
+                            if let Some((ray, g)) = secondary {
                                 out.rays.push(ray);
                                 out.grads.push(g);
                             }
@@ -424,14 +489,28 @@ impl Inverter {
         let mut d_env = vec![[0.0f32; 3]; texels];
         let mut rays = Vec::new();
         let mut grads = Vec::new();
+        let mut d_mat: Vec<MaterialGrads> = if materials_on {
+            surfels
+                .iter()
+                .map(|s| MaterialGrads::zeros(s.len()))
+                .collect()
+        } else {
+            Vec::new()
+        };
         for c in chunks {
             for (t, g) in c.texels {
                 for ch in 0..3 {
                     d_env[t as usize][ch] += g[ch];
                 }
             }
+            for (e, g) in &c.primary {
+                scatter_material_grad(cache.hits(*e), g, &mut d_mat);
+            }
             rays.extend(c.rays);
             grads.extend(c.grads);
+        }
+        if materials_on && !rays.is_empty() {
+            placed.material_backward(&rays, &grads, &mut d_mat);
         }
         let tv = env_tv(&env.pixels, env.width, env.height);
         // E = exp ρ: dL/dρ = dL/dE · E.
@@ -446,12 +525,15 @@ impl Inverter {
             .adam
             .group_index(&format!("env{k}"))
             .expect("one group per state");
+        let lr = |base: f32, start: u32| Schedule::Constant {
+            lr: s.lr_at(base, start, it),
+        };
+        self.adam.set_schedule(g_env, lr(s.lr_env, 0));
         self.adam.step(g_env, &mut self.envs[k], &d_rho);
 
-        if materials_on && !rays.is_empty() {
-            let grads_s = placed.composite_backward(&refs, &rays, &grads, false);
+        if materials_on {
             let all = it >= s.base_color_until;
-            for (c, (m, g)) in self.materials.iter_mut().zip(&grads_s.surfels).enumerate() {
+            for (c, (m, g)) in self.materials.iter_mut().zip(&d_mat).enumerate() {
                 // d/dlogit = d/dvalue · σ(1 − σ).
                 let dsig = |x: f32| {
                     let y = sigmoid(x);
@@ -467,6 +549,8 @@ impl Inverter {
                     .adam
                     .group_index(&format!("{c}/base_color"))
                     .expect("group");
+                self.adam
+                    .set_schedule(gi, lr(s.lr_base_color, s.lighting_until));
                 self.adam.step(gi, &mut m.base_color, &d_bc);
                 if all {
                     let d_m: Vec<f32> = (0..m.len())
@@ -479,11 +563,15 @@ impl Inverter {
                         .adam
                         .group_index(&format!("{c}/metallic"))
                         .expect("group");
+                    self.adam
+                        .set_schedule(gm, lr(s.lr_metallic, s.base_color_until));
                     self.adam.step(gm, &mut m.metallic, &d_m);
                     let gr = self
                         .adam
                         .group_index(&format!("{c}/roughness"))
                         .expect("group");
+                    self.adam
+                        .set_schedule(gr, lr(s.lr_roughness, s.base_color_until));
                     self.adam.step(gr, &mut m.roughness, &d_r);
                 }
             }
