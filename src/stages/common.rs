@@ -1,6 +1,6 @@
 //! The loop skeleton the stages share (DESIGN §4): a progress bar on a terminal or plain lines
-//! in a log, the `log.jsonl` appender, and checkpoints written atomically and read back for
-//! `--resume`.
+//! in a log, the `log.jsonl` appender, checkpoints written atomically and read back for
+//! `--resume`, and the training loop itself ([`StageLoop`], [`resume_or_start`]).
 
 use crate::error::{Error, Result};
 use crate::io::AtomicFiles;
@@ -186,6 +186,114 @@ pub fn read_checkpoint<T: DeserializeOwned>(path: &Path) -> Result<T> {
     })
 }
 
+/// The mean of a stage's per-iteration losses over the iterations since the last log line:
+/// every numeric field of the losses' serde form, summed in f64.
+#[derive(Default)]
+pub struct LossWindow {
+    sums: serde_json::Map<String, serde_json::Value>,
+    n: u32,
+}
+
+impl LossWindow {
+    /// Adds one iteration's losses (a struct of numbers; other fields are ignored).
+    pub fn add<L: Serialize>(&mut self, losses: &L) {
+        let Ok(serde_json::Value::Object(m)) = serde_json::to_value(losses) else {
+            return;
+        };
+        for (k, v) in m {
+            if let Some(x) = v.as_f64() {
+                let acc = self.sums.entry(k).or_insert(0.0.into());
+                *acc = (acc.as_f64().unwrap_or(0.0) + x).into();
+            }
+        }
+        self.n += 1;
+    }
+
+    /// The means so far, and the window emptied.
+    pub fn take(&mut self) -> serde_json::Map<String, serde_json::Value> {
+        let k = self.n.max(1) as f64;
+        let out = std::mem::take(&mut self.sums)
+            .into_iter()
+            .map(|(name, v)| (name, (v.as_f64().unwrap_or(0.0) / k).into()))
+            .collect();
+        self.n = 0;
+        out
+    }
+}
+
+/// The loop every stage runs (DESIGN §4): steps until `total`, a `log.jsonl` line of the mean
+/// losses every `log_every` iterations (and at the end), the progress bar's status at the same
+/// time, and the checkpoint every `checkpoint_every` iterations (and at the end).
+pub struct StageLoop<'a> {
+    pub total: u32,
+    pub log_every: u32,
+    pub checkpoint_every: u32,
+    pub checkpoint: &'a Path,
+    pub log: &'a mut StageLog,
+    pub bar: &'a Progress,
+}
+
+impl StageLoop<'_> {
+    /// Runs `state` (the checkpointed value) from `iteration(state)` to `total`. `step` runs one
+    /// iteration and returns its losses (it may print above the bar); `line` adds the stage's
+    /// own fields to each log line (it holds the mean losses under their names, and
+    /// `iteration`) and returns the bar's status.
+    pub fn run<C: Serialize, L: Serialize>(
+        &mut self,
+        state: &mut C,
+        iteration: impl Fn(&C) -> u32,
+        mut step: impl FnMut(&mut C, &Progress) -> Result<L>,
+        mut line: impl FnMut(&C, &mut serde_json::Map<String, serde_json::Value>) -> String,
+    ) -> Result<()> {
+        let mut window = LossWindow::default();
+        while iteration(state) < self.total {
+            let l = step(state, self.bar)?;
+            window.add(&l);
+            self.bar.inc(1);
+            let it = iteration(state);
+            let last = it >= self.total;
+            if it % self.log_every.max(1) == 0 || last {
+                let mut m = window.take();
+                m.insert("iteration".into(), it.into());
+                let status = line(state, &mut m);
+                self.log.write(&serde_json::Value::Object(m))?;
+                self.bar.status(&status);
+            }
+            if it % self.checkpoint_every.max(1) == 0 || last {
+                write_checkpoint(self.checkpoint, state)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Opens a stage's checkpoint for `--resume` when asked and present (`read` validates it
+/// against this run), otherwise starts afresh with `fresh`; says which. Returns the state and
+/// whether it was resumed.
+pub fn resume_or_start<C>(
+    checkpoint: &Path,
+    resume: bool,
+    quiet: bool,
+    read: impl FnOnce(&Path) -> Result<C>,
+    iteration: impl Fn(&C) -> u32,
+    fresh: impl FnOnce() -> Result<C>,
+) -> Result<(C, bool)> {
+    if resume && checkpoint.is_file() {
+        let c = read(checkpoint)?;
+        say(
+            quiet,
+            &format!(
+                "resuming from {} at iteration {}",
+                checkpoint.display(),
+                iteration(&c)
+            ),
+        );
+        Ok((c, true))
+    } else {
+        Ok((fresh()?, false))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,6 +308,64 @@ mod tests {
         std::fs::write(&path, b"{not json").expect("written");
         let err = read_checkpoint::<Vec<u32>>(&path).expect_err("not a checkpoint");
         assert!(err.to_string().contains("checkpoint.json"), "{err}");
+    }
+
+    #[test]
+    fn the_loop_logs_window_means_and_checkpoints_on_its_grid() {
+        #[derive(Serialize)]
+        struct L {
+            loss: f32,
+            label: &'static str,
+        }
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let (ckpt, log_path) = (dir.path().join("c.json"), dir.path().join("log.jsonl"));
+        let mut log = StageLog::create(&log_path, false).expect("created");
+        let bar = Progress::new(true, 5, "test");
+        let mut state = 0u32;
+        StageLoop {
+            total: 5,
+            log_every: 2,
+            checkpoint_every: 4,
+            checkpoint: &ckpt,
+            log: &mut log,
+            bar: &bar,
+        }
+        .run(
+            &mut state,
+            |s| *s,
+            |s, _| {
+                *s += 1;
+                Ok(L {
+                    loss: *s as f32,
+                    label: "x",
+                })
+            },
+            |s, m| {
+                m.insert("twice".into(), (2 * s).into());
+                String::new()
+            },
+        )
+        .expect("ran");
+        let text = std::fs::read_to_string(&log_path).expect("read");
+        let lines: Vec<serde_json::Value> = text
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("json"))
+            .collect();
+        // Means of (1, 2), (3, 4) and the last (5): the end always logs and checkpoints.
+        let got: Vec<(u64, f64, u64)> = lines
+            .iter()
+            .map(|v| {
+                (
+                    v["iteration"].as_u64().unwrap(),
+                    v["loss"].as_f64().unwrap(),
+                    v["twice"].as_u64().unwrap(),
+                )
+            })
+            .collect();
+        assert_eq!(got, [(2, 1.5, 4), (4, 3.5, 8), (5, 5.0, 10)]);
+        assert!(lines.iter().all(|v| v.get("label").is_none()));
+        let back: u32 = read_checkpoint(&ckpt).expect("checkpointed");
+        assert_eq!(back, 5);
     }
 
     #[test]

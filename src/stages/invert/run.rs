@@ -3,7 +3,7 @@
 //! `<work>/relightable.usda` and `<work>/invert/{report.json, log.jsonl, checkpoint.json}`.
 
 use super::cache::{CacheFigures, PrimaryCache};
-use super::train::{initial_environment, Inverter, Losses, Settings, TrainState};
+use super::train::{initial_environment, Inverter, Settings, TrainState};
 use crate::error::{Error, Result};
 use crate::eval::lighting::{
     compare_albedo, compare_environments, compare_materials, AlbedoFigures, EnvFigures,
@@ -15,13 +15,12 @@ use crate::io::AtomicFiles;
 use crate::scene::{EnvRef, Scene, Surfels};
 use crate::shade::envmap::EnvMap;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
-use crate::stages::common::{read_checkpoint, say, write_checkpoint, Progress, StageLog};
+use crate::stages::common::{read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop};
 use crate::stages::reconstruct::run::split;
 use crate::stages::refine::run::read_stage_scene;
 use crate::trace::TraceScene;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -293,62 +292,57 @@ pub fn invert(opts: &Options) -> Result<Report> {
     let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
     let ckpt = out_dir.join("checkpoint.json");
     let log_path = out_dir.join("log.jsonl");
-    let resumed = opts.resume && ckpt.is_file();
-    let mut c = if resumed {
-        let c = read_resumable(&ckpt, &opts.settings, &surfels)?;
-        say(
-            opts.quiet,
-            &format!(
-                "resuming from {} at iteration {}",
-                ckpt.display(),
-                c.inverter.iteration
-            ),
-        );
-        c
-    } else {
-        say(
-            opts.quiet,
-            "initialising each state's environment from the pixels its views see it in",
-        );
-        let envs: Vec<_> = loop_states
-            .iter()
-            .map(|s| initial_environment(&s.views, w, h))
-            .collect();
-        let refs: Vec<&Surfels> = surfels.iter().collect();
-        Checkpoint {
-            inverter: Inverter::new(opts.settings.clone(), &refs, &envs),
-        }
-    };
+    let (mut c, resumed) = resume_or_start(
+        &ckpt,
+        opts.resume,
+        opts.quiet,
+        |p| read_resumable(p, &opts.settings, &surfels),
+        |c: &Checkpoint| c.inverter.iteration,
+        || {
+            say(
+                opts.quiet,
+                "initialising each state's environment from the pixels its views see it in",
+            );
+            let envs: Vec<_> = loop_states
+                .iter()
+                .map(|s| initial_environment(&s.views, w, h))
+                .collect();
+            let refs: Vec<&Surfels> = surfels.iter().collect();
+            Ok(Checkpoint {
+                inverter: Inverter::new(opts.settings.clone(), &refs, &envs),
+            })
+        },
+    )?;
     let mut log = StageLog::create(&log_path, resumed)?;
     let mut trace = TraceScene::from_components(&surfels.iter().collect::<Vec<_>>());
 
     let total = opts.settings.iterations;
     let mut bar = Progress::new(opts.quiet, total as u64, "inverting");
     bar.start_at(c.inverter.iteration as u64);
-    let mut window = Losses::default();
-    let mut window_n = 0u32;
-    while c.inverter.iteration < total {
-        let l = c.inverter.step(&mut trace, &mut surfels, &loop_states);
-        window.l1 += l.l1;
-        window.tv += l.tv;
-        window.total += l.total;
-        window_n += 1;
-        bar.inc(1);
-        let it = c.inverter.iteration;
-        if it % LOG_EVERY == 0 || it == total {
-            let k = window_n.max(1) as f32;
-            log.write(&json!({
-                "iteration": it, "spp": l.spp, "l1": window.l1 / k, "tv": window.tv / k,
-                "total": window.total / k, "seconds": t0.elapsed().as_secs_f64(),
-            }))?;
-            bar.status(&format!("L1 {:.4} · {} spp", window.l1 / k, l.spp));
-            window = Losses::default();
-            window_n = 0;
-        }
-        if it % CHECKPOINT_EVERY == 0 || it == total {
-            write_checkpoint(&ckpt, &c)?;
-        }
+    StageLoop {
+        total,
+        log_every: LOG_EVERY,
+        checkpoint_every: CHECKPOINT_EVERY,
+        checkpoint: &ckpt,
+        log: &mut log,
+        bar: &bar,
     }
+    .run(
+        &mut c,
+        |c| c.inverter.iteration,
+        |c, _| Ok(c.inverter.step(&mut trace, &mut surfels, &loop_states)),
+        |c, m| {
+            // The samples per pixel the last iteration drew, not their window mean.
+            let spp = c
+                .inverter
+                .settings
+                .spp_at(c.inverter.iteration.saturating_sub(1));
+            m.insert("spp".into(), spp.into());
+            m.insert("seconds".into(), t0.elapsed().as_secs_f64().into());
+            let l1 = m.get("l1").and_then(|v| v.as_f64()).unwrap_or(0.0);
+            format!("L1 {l1:.4} · {spp} spp")
+        },
+    )?;
     bar.finish();
 
     // The relightable scene: materials in the surfels, each training state lit by its

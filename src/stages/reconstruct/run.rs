@@ -11,7 +11,7 @@
 //! 5. Write `scene.glb`, `report.json` (held-out PSNR, depth error, pose errors, label shares),
 //!    `log.jsonl` (losses) and `checkpoint.json` (resumable with `--resume`).
 
-use super::train::{render_state, Losses, Model, RawComponent, Settings, Trainer};
+use super::train::{render_state, Model, RawComponent, Settings, Trainer};
 use super::{align, completion, init, register, segment};
 use crate::error::{Error, Result};
 use crate::eval::pose::pose_error;
@@ -21,10 +21,9 @@ use crate::eval::report::{
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Component, Rigid, Scene, State};
-use crate::stages::common::{read_checkpoint, say, write_checkpoint, Progress, StageLog};
+use crate::stages::common::{read_checkpoint, say, Progress, StageLog, StageLoop};
 use glam::Vec3;
 use serde::Serialize;
-use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -322,47 +321,34 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     let mut log = StageLog::append(&opts.out.join("log.jsonl"))?;
     let completion_at = total / 3;
     bar.start_at(trainer.iteration as u64);
-    let mut window = Losses::default();
-    let mut window_n = 0u32;
-    while trainer.iteration < total {
-        if trainer.iteration == completion_at && completion_at > 0 {
-            let added = complete(&mut trainer, &train, opts)?;
-            bar.println(&format!(
-                "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
-                opts.tau_d
-            ));
-        }
-        let l = trainer.step(&views);
-        window.total += l.total;
-        window.rgb += l.rgb;
-        window.depth += l.depth;
-        window.normal += l.normal;
-        window.alpha += l.alpha;
-        window.depth_normal += l.depth_normal;
-        window.scale += l.scale;
-        window_n += 1;
-        bar.inc(1);
-        if trainer.iteration % 50 == 0 || trainer.iteration == total {
-            let k = window_n.max(1) as f32;
-            let line = json!({
-                "iteration": trainer.iteration, "surfels": trainer.model.surfel_count(),
-                "total": window.total / k, "rgb": window.rgb / k, "alpha": window.alpha / k,
-                "scale": window.scale / k, "depth": window.depth / k, "normal": window.normal / k,
-                "depth_normal": window.depth_normal / k,
-            });
-            log.write(&line)?;
-            bar.status(&format!(
-                "loss {:.4} · {} surfels",
-                window.total / k,
-                trainer.model.surfel_count()
-            ));
-            window = Losses::default();
-            window_n = 0;
-        }
-        if trainer.iteration % 500 == 0 || trainer.iteration == total {
-            write_checkpoint(&checkpoint_path(&opts.out), &trainer)?;
-        }
+    StageLoop {
+        total,
+        log_every: 50,
+        checkpoint_every: 500,
+        checkpoint: &checkpoint_path(&opts.out),
+        log: &mut log,
+        bar: &bar,
     }
+    .run(
+        &mut trainer,
+        |t| t.iteration,
+        |t, bar| {
+            if t.iteration == completion_at && completion_at > 0 {
+                let added = complete(t, &train, opts)?;
+                bar.println(&format!(
+                    "completion: {added} surfels seeded (eq. completion-mask, τ_D = {} m)",
+                    opts.tau_d
+                ));
+            }
+            Ok(t.step(&views))
+        },
+        |t, m| {
+            let surfels = t.model.surfel_count();
+            m.insert("surfels".into(), surfels.into());
+            let total = m.get("total").and_then(|v| v.as_f64()).unwrap_or(0.0);
+            format!("loss {total:.4} · {surfels} surfels")
+        },
+    )?;
     bar.finish();
 
     let scene = scene_of(&trainer.model, &dataset, &train_states);

@@ -1,17 +1,16 @@
 //! Stage 2 from files to files: `<work>/scene.glb` (stage 1) and the dataset's captures to
 //! `<work>/refined.glb` and `<work>/refine/{report.json, log.jsonl, checkpoint.json}`.
 
-use super::train::{Losses, Refiner, Settings, TrainState};
+use super::train::{Refiner, Settings, TrainState};
 use crate::error::{Error, Result};
 use crate::eval::geometry::{tally_state, GeometryFigures, GeometryTally, LeakOptions};
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Scene, BACKGROUND};
-use crate::stages::common::{read_checkpoint, say, write_checkpoint, Progress, StageLog};
+use crate::stages::common::{read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop};
 use crate::stages::reconstruct::run::split;
 use crate::trace::TraceScene;
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -237,71 +236,51 @@ pub fn refine(opts: &Options) -> Result<Report> {
 
     let ckpt = checkpoint_path(&out_dir);
     let log_path = out_dir.join("log.jsonl");
-    let resumed = opts.resume && ckpt.is_file();
-    let mut c = if resumed {
-        let c = read_resumable(&ckpt, &opts.settings)?;
-        say(
-            opts.quiet,
-            &format!(
-                "resuming from {} at iteration {}",
-                ckpt.display(),
-                c.refiner.iteration
-            ),
-        );
-        c
-    } else {
-        say(
-            opts.quiet,
-            "measuring stage 1's geometry by ray tracing the held-out views",
-        );
-        let (before, before_states) = measure(&scene, &eval_states, &opts.leaks);
-        Checkpoint {
-            refiner: Refiner::new(opts.settings.clone(), &scene.components),
-            before,
-            before_states,
-            surfels_before: scene.surfel_count(),
-        }
-    };
+    let (mut c, resumed) = resume_or_start(
+        &ckpt,
+        opts.resume,
+        opts.quiet,
+        |p| read_resumable(p, &opts.settings),
+        |c: &Checkpoint| c.refiner.iteration,
+        || {
+            say(
+                opts.quiet,
+                "measuring stage 1's geometry by ray tracing the held-out views",
+            );
+            let (before, before_states) = measure(&scene, &eval_states, &opts.leaks);
+            Ok(Checkpoint {
+                refiner: Refiner::new(opts.settings.clone(), &scene.components),
+                before,
+                before_states,
+                surfels_before: scene.surfel_count(),
+            })
+        },
+    )?;
     let mut log = StageLog::create(&log_path, resumed)?;
 
     let total = opts.settings.iterations;
     let mut bar = Progress::new(opts.quiet, total as u64, "refining");
     bar.start_at(c.refiner.iteration as u64);
-    let mut window = Losses::default();
-    let mut window_n = 0u32;
-    while c.refiner.iteration < total {
-        let l = c.refiner.step(&loop_states);
-        window.total += l.total;
-        window.alpha += l.alpha;
-        window.scale += l.scale;
-        window.depth += l.depth;
-        window.normal += l.normal;
-        window.depth_normal += l.depth_normal;
-        window_n += 1;
-        bar.inc(1);
-        let it = c.refiner.iteration;
-        if it % LOG_EVERY == 0 || it == total {
-            let k = window_n.max(1) as f32;
-            let line = json!({
-                "iteration": it, "surfels": c.refiner.surfel_count(),
-                "total": window.total / k, "alpha": window.alpha / k, "scale": window.scale / k,
-                "depth": window.depth / k, "normal": window.normal / k,
-                "depth_normal": window.depth_normal / k,
-                "seconds": t0.elapsed().as_secs_f64(),
-            });
-            log.write(&line)?;
-            bar.status(&format!(
-                "loss {:.4} · {} surfels",
-                window.total / k,
-                c.refiner.surfel_count()
-            ));
-            window = Losses::default();
-            window_n = 0;
-        }
-        if it % CHECKPOINT_EVERY == 0 || it == total {
-            write_checkpoint(&ckpt, &c)?;
-        }
+    StageLoop {
+        total,
+        log_every: LOG_EVERY,
+        checkpoint_every: CHECKPOINT_EVERY,
+        checkpoint: &ckpt,
+        log: &mut log,
+        bar: &bar,
     }
+    .run(
+        &mut c,
+        |c| c.refiner.iteration,
+        |c, _| Ok(c.refiner.step(&loop_states)),
+        |c, m| {
+            let surfels = c.refiner.surfel_count();
+            m.insert("surfels".into(), surfels.into());
+            m.insert("seconds".into(), t0.elapsed().as_secs_f64().into());
+            let total = m.get("total").and_then(|v| v.as_f64()).unwrap_or(0.0);
+            format!("loss {total:.4} · {surfels} surfels")
+        },
+    )?;
     bar.finish();
 
     let mut refined = scene.clone();
