@@ -308,3 +308,64 @@ fn recovers_known_materials_and_environments() {
         assert!(p > 60.0, "environment PSNR {p} dB");
     }
 }
+
+/// The primary-record cache holds, for every training pixel and sub-pixel position, exactly what
+/// tracing that pixel's filter-jittered camera ray returns (record bit for bit, and the hits its
+/// material sums are made of), indexed by image (states' views in order), pixel and sample
+/// (position = sample mod jitters).
+#[test]
+fn primary_cache_holds_the_traced_records() {
+    use lightfuse::shade::Sampler;
+    use lightfuse::stages::invert::cache::PrimaryCache;
+    let t = truth();
+    let parts: Vec<&Surfels> = t.scene.components.iter().map(|c| &c.surfels).collect();
+    let trace = TraceScene::from_components(&parts);
+    let cams = [
+        camera(Vec3::new(0.0, 0.2, 2.4), 12, 10, 12.0),
+        oriented(camera(Vec3::new(0.5, 0.3, 2.0), 12, 10, 12.0), 10.0, 5.0),
+    ];
+    let views: Vec<Observation> = cams
+        .iter()
+        .enumerate()
+        .map(|(v, &camera)| Observation {
+            state: 0,
+            view: v,
+            camera,
+            rgb: vec![[0.0; 3]; 120],
+            depth: vec![0.0; 120],
+            normal: vec![[0.0; 3]; 120],
+            mask: vec![0; 120],
+        })
+        .collect();
+    // State 0 sees view 0, state 1 (the sphere moved) view 1: images 0 and 1.
+    let states: Vec<TrainState> = (0..2)
+        .map(|k| TrainState {
+            views: vec![&views[k]],
+            transforms: t.scene.states[k].transforms.clone(),
+            eps: self_hit_epsilon(&t.scene, &t.scene.states[k]),
+        })
+        .collect();
+    let (jitters, seed) = (3, 11);
+    let cache = PrimaryCache::build(&trace, &states, jitters, seed);
+    assert_eq!(cache.len().0, 2 * 120 * jitters as usize);
+    let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
+    let mut hit = 0;
+    for (image, st) in states.iter().enumerate() {
+        let placed = trace.place(&st.transforms);
+        let cam = &st.views[0].camera;
+        for p in 0..120u32 {
+            let sampler = Sampler::new(p, seed);
+            for i in 0..7 {
+                let (o, d) = filter.camera_ray(cam, (p % 12, p / 12), &sampler, i % jitters);
+                let want = placed.composite(o, d, 0.0, f32::INFINITY);
+                let e = cache.entry(image, p, i);
+                let (ray, got) = cache.record(e, &parts);
+                assert_eq!((ray.origin, ray.dir), (o, d));
+                assert_eq!(got, want, "image {image} pixel {p} sample {i}");
+                assert_eq!(cache.hits(e).len(), want.hits as usize);
+                hit += (want.hits > 0) as u32;
+            }
+        }
+    }
+    assert!(hit > 200, "the views must see the objects ({hit})");
+}
