@@ -7,22 +7,13 @@ from; bad input is one clear error with exit code 2 and nothing written.  (Quali
 on the demo and reported in the issue note; `tests/invert.rs` proves recovery on a known scene,
 `tests/replay.rs` the gradients.)"""
 import json
-import shutil
 
-from test_reconstruct import ok, run
-
-
-def stages12(tiny_dataset, tmp_path, refine=True):
-    work = tmp_path / "work"
-    ok("--quiet", "reconstruct", tiny_dataset["path"], "-o", work, "--iterations", "20")
-    if refine:
-        ok("--quiet", "refine", tiny_dataset["path"], work, "--iterations", "5")
-    return work
+from test_reconstruct import ok, renamed_object_dataset, run, stages
 
 
 def test_invert_writes_the_relightable_scene_and_resumes(tiny_dataset, tmp_path):
     ds = tiny_dataset["path"]
-    work = stages12(tiny_dataset, tmp_path)
+    work = stages(tiny_dataset, tmp_path, refine=True)
     refined = (work / "refined.glb").read_bytes()
     report = json.loads(ok("--json", "invert", ds, work, "--iterations", "6", "--eval-spp", "2",
                            "--spp-schedule", "max16"))
@@ -58,7 +49,7 @@ def test_invert_without_stage2_warns_and_bad_input_is_a_clear_error(tiny_dataset
     assert p.returncode == 2 and "refined.glb" in p.stderr and "refine" in p.stderr, p.stderr
     assert not (tmp_path / "empty" / "relightable.glb").exists()
 
-    work = stages12(tiny_dataset, tmp_path, refine=False)
+    work = stages(tiny_dataset, tmp_path)
     p = run("invert", ds, work, "--iterations", "2", "--eval-spp", "1", "--eval-stride", "4")
     assert p.returncode == 0, p.stderr
     assert "warning" in p.stderr and "stage 2 has not run" in p.stderr
@@ -68,15 +59,7 @@ def test_invert_without_stage2_warns_and_bad_input_is_a_clear_error(tiny_dataset
         assert p.returncode == 2 and what in p.stderr and "panicked" not in p.stderr, p.stderr
 
     # A dataset whose objects are not the scene's.
-    other = tmp_path / "other"
-    shutil.copytree(ds, other)
-    d = json.loads((other / "dataset.json").read_text())
-    old = d["objects"][0]["name"]
-    d["objects"][0]["name"] = "teapot"
-    for s in d["states"]:
-        if s.get("object_poses"):
-            s["object_poses"] = {("teapot" if k == old else k): v for k, v in s["object_poses"].items()}
-    (other / "dataset.json").write_text(json.dumps(d))
+    other = renamed_object_dataset(ds, tmp_path / "other")
     (work / "relightable.glb").unlink()
     p = run("invert", other, work)
     assert p.returncode == 2 and "components" in p.stderr and "teapot" in p.stderr, p.stderr

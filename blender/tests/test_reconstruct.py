@@ -24,6 +24,30 @@ def ok(*args):
     return p.stdout
 
 
+def stages(tiny_dataset, tmp_path, refine=False):
+    """A work folder with stage 1 (20 iterations) and, with `refine`, stage 2 (5) on the tiny
+    dataset: the starting point of the later stages' tests."""
+    work = tmp_path / "work"
+    ok("--quiet", "reconstruct", tiny_dataset["path"], "-o", work, "--iterations", "20")
+    if refine:
+        ok("--quiet", "refine", tiny_dataset["path"], work, "--iterations", "5")
+    return work
+
+
+def renamed_object_dataset(ds, dest, name="teapot"):
+    """A copy of dataset folder `ds` at `dest` whose first object is called `name` (its poses
+    too): a dataset that does not match a scene reconstructed from `ds`."""
+    shutil.copytree(ds, dest)
+    d = json.loads((dest / "dataset.json").read_text())
+    old = d["objects"][0]["name"]
+    d["objects"][0]["name"] = name
+    for s in d["states"]:
+        if s.get("object_poses"):
+            s["object_poses"] = {(name if k == old else k): v for k, v in s["object_poses"].items()}
+    (dest / "dataset.json").write_text(json.dumps(d))
+    return dest
+
+
 def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):
     ds = tiny_dataset["path"]
     work = tmp_path / "work"

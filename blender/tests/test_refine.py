@@ -5,23 +5,16 @@ input is one clear error with exit code 2 and nothing written.  (Quality figures
 the demo dataset and reported in the issue note; this tiny 32x32 dataset proves the plumbing,
 `tests/refine.rs` proves the repair.)"""
 import json
-import shutil
 
-from test_reconstruct import ok, run
+from test_reconstruct import ok, renamed_object_dataset, run, stages
 
 FIGURES = {"depth_median_m", "normal_mean_deg", "holes", "false_occlusion", "light_leaks",
            "surface_pixels", "environment_pixels", "blocked_rays", "leaking_rays"}
 
 
-def stage1(tiny_dataset, tmp_path):
-    work = tmp_path / "work"
-    ok("--quiet", "reconstruct", tiny_dataset["path"], "-o", work, "--iterations", "20")
-    return work
-
-
 def test_refine_writes_the_refined_scene_and_resumes(tiny_dataset, tmp_path):
     ds = tiny_dataset["path"]
-    work = stage1(tiny_dataset, tmp_path)
+    work = stages(tiny_dataset, tmp_path)
     before = (work / "scene.glb").read_bytes()
     report = json.loads(ok("--json", "refine", ds, work, "--iterations", "20", "--no-scale"))
     assert (work / "scene.glb").read_bytes() == before
@@ -61,16 +54,8 @@ def test_refine_bad_input_is_a_clear_error(tiny_dataset, tmp_path):
     assert p.returncode == 2 and "scene.glb" in p.stderr and "panicked" not in p.stderr, p.stderr
 
     # A dataset whose objects are not the scene's.
-    work = stage1(tiny_dataset, tmp_path)
-    other = tmp_path / "other"
-    shutil.copytree(ds, other)
-    d = json.loads((other / "dataset.json").read_text())
-    d["objects"][0]["name"] = "teapot"
-    for s in d["states"]:
-        if "object_poses" in s and s["object_poses"]:
-            s["object_poses"] = {("teapot" if k == tiny_dataset["json"]["objects"][0]["name"] else k): v
-                                 for k, v in s["object_poses"].items()}
-    (other / "dataset.json").write_text(json.dumps(d))
+    work = stages(tiny_dataset, tmp_path)
+    other = renamed_object_dataset(ds, tmp_path / "other")
     p = run("refine", other, work)
     assert p.returncode == 2 and "components" in p.stderr and "teapot" in p.stderr, p.stderr
     assert not (work / "refined.glb").exists()

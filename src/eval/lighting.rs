@@ -232,17 +232,7 @@ mod tests {
     use super::*;
 
     fn pattern(w: usize, h: usize) -> Environment {
-        let px = (0..w * h)
-            .map(|i| {
-                let (x, y) = (i % w, i / w);
-                [
-                    (x * 7 % 13) as f32 * 0.25 + 0.1,
-                    (y * 3 % 5) as f32 + 0.5,
-                    ((x + y) % 4) as f32 * 10.0,
-                ]
-            })
-            .collect();
-        Environment::new("p", w, h, px)
+        crate::scene::environment::test_pattern(w, h)
     }
 
     #[test]

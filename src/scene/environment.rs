@@ -125,22 +125,29 @@ impl Environment {
     }
 }
 
+/// A `w × h` test map with structure in both directions and every channel different (unit
+/// tests of environments and of the lighting metrics share it).
+#[cfg(test)]
+pub(crate) fn test_pattern(w: usize, h: usize) -> Environment {
+    let px = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            [
+                (x * 7 % 13) as f32 * 0.25 + 0.1,
+                (y * 3 % 5) as f32 + 0.5,
+                ((x + y) % 4) as f32 * 10.0,
+            ]
+        })
+        .collect();
+    Environment::new("p", w, h, px)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn pattern(w: usize, h: usize) -> Environment {
-        let px = (0..w * h)
-            .map(|i| {
-                let (x, y) = (i % w, i / w);
-                [
-                    (x * 7 % 13) as f32 + 0.1,
-                    (y * 3 % 5) as f32,
-                    ((x + y) % 4) as f32 * 10.0,
-                ]
-            })
-            .collect();
-        Environment::new("p", w, h, px)
+        test_pattern(w, h)
     }
 
     #[test]
