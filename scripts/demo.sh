@@ -42,5 +42,9 @@ print("test state:", test["name"])
 PY
 test_state=$(python3 -c 'import json,sys; print(next(s["name"] for s in json.load(open(sys.argv[1]))["states"] if s["split"] == "test"))' "$out/dataset/dataset.json")
 "$lf" render "$out/recon/scene.glb" --layout "$out/test_layout.json" --cameras "$out/dataset" --frames "$test_state" --baked --out "$out/recon/$test_state"
-echo "done: $out/recon/scene.glb (reconstruction; report.json beside it), $out/recon/refined.glb (refined for ray tracing; refine/report.json), $out/recon/relightable.glb (materials and recovered environments; invert/report.json), $out/recon/$test_state/ (its test-layout renders)"
+echo "== the relightable scene edited: the test layout, under an environment no training state had"
+test_env=$(python3 -c 'import json,sys; print(next(s for s in json.load(open(sys.argv[1]))["states"] if s["split"] == "test")["relight"][0]["environment"])' "$out/dataset/dataset.json")
+"$lf" edit "$out/recon/relightable.glb" -o "$out/recon/relit.glb" --name relit --layout "$out/test_layout.json" --env "$out/dataset/$test_env"
+echo "   render it: $lf render $out/recon/relit.glb --state relit --cameras $out/dataset --frames $test_state --spp 32 --out $out/recon/relit"
+echo "done: $out/recon/scene.glb (reconstruction; report.json beside it), $out/recon/refined.glb (refined for ray tracing; refine/report.json), $out/recon/relightable.glb (materials and recovered environments; invert/report.json), $out/recon/$test_state/ (its test-layout renders), $out/recon/relit.glb (the test layout under a new environment)"
 echo "done: $out/scene.glb (open in any KHR_gaussian_splatting viewer), $out/scene.usda, $out/scene.ply"

@@ -56,6 +56,38 @@ pub enum Command {
     /// poses fixed; writes <work>/relightable.{glb,usda} and
     /// <work>/invert/{report.json, log.jsonl, checkpoint.json}.
     Invert(InvertArgs),
+    /// Edit a scene: a new named state from a layout, per-object materials and a new
+    /// environment, written as .glb, .gltf or .usda (materials are shared by every state).
+    Edit(EditArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct EditArgs {
+    /// The scene to edit (.glb, .gltf or .usda), e.g. <work>/relightable.glb.
+    pub scene: PathBuf,
+    /// The edited scene (.glb, .gltf or .usda); the input is not changed.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// The new state's name.
+    #[arg(long, default_value = "edit")]
+    pub name: String,
+    /// The state the edit starts from (placement and environment; default the reference).
+    #[arg(long)]
+    pub state: Option<String>,
+    /// Layout (layout.json, or a .glb/.gltf with named object nodes): object transforms relative
+    /// to the reference placement; objects it does not name stay there.
+    #[arg(long)]
+    pub layout: Option<PathBuf>,
+    /// OBJECT:base_color=R,G,B, OBJECT:metallic=M or OBJECT:roughness=R (values in [0, 1]; the
+    /// background is "background"); repeatable.
+    #[arg(long = "material")]
+    pub materials: Vec<String>,
+    /// A new environment (equirectangular EXR, scene-linear) for the new state.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Its rotation about +Y in degrees (Cycles' convention).
+    #[arg(long, requires = "env", default_value_t = 0.0)]
+    pub env_rotation: f32,
 }
 
 #[derive(clap::Args, Debug)]
@@ -345,6 +377,7 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Reconstruct(a) => reconstruct(cli, a),
         Command::Refine(a) => refine(cli, a),
         Command::Invert(a) => invert(cli, a),
+        Command::Edit(a) => edit(cli, a),
     }
 }
 
@@ -377,6 +410,58 @@ fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {
             out.height,
             e0,
             e1
+        );
+    }
+    Ok(())
+}
+
+fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
+    use crate::scene::{Edit, MaterialEdit};
+    let materials = a
+        .materials
+        .iter()
+        .map(|m| MaterialEdit::parse(m).map_err(|e| Error::Usage(format!("--material {e}"))))
+        .collect::<Result<Vec<_>>>()?;
+    if !a.env_rotation.is_finite() {
+        return Err(Error::Usage(
+            "--env-rotation: expected a finite angle".into(),
+        ));
+    }
+    let mut scene = crate::io::read_scene(&a.scene)?;
+    let layout = match &a.layout {
+        Some(p) => Some((crate::io::layout::read_layout(p)?, p.clone())),
+        None => None,
+    };
+    let environment = match &a.env {
+        Some(p) => {
+            let name = p
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let mut env = crate::io::exr::read_environment(p, &name)?;
+            render::check_latlong(&env, p, "EXR data window")?;
+            env.clamp_negative();
+            Some((env, a.env_rotation))
+        }
+        None => None,
+    };
+    scene.apply_edit(
+        &Edit {
+            name: a.name.clone(),
+            from_state: a.state.clone(),
+            layout,
+            materials,
+            environment,
+        },
+        &a.scene,
+    )?;
+    crate::io::write_scene(&scene, &a.output)?;
+    if !cli.quiet {
+        eprintln!(
+            "wrote {}: state {:?} added ({} states)",
+            a.output.display(),
+            a.name,
+            scene.states.len()
         );
     }
     Ok(())

@@ -139,7 +139,7 @@ fn select_state(scene: &Scene, a: &RenderArgs) -> Result<State> {
 }
 
 /// Refuses anything but an equirectangular (2:1) map.
-fn check_latlong(env: &Environment, file: &Path, field: &str) -> Result<()> {
+pub(crate) fn check_latlong(env: &Environment, file: &Path, field: &str) -> Result<()> {
     if env.width != 2 * env.height {
         return Err(Error::invalid(
             file,

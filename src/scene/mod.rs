@@ -2,6 +2,7 @@
 //! place the objects and light the scene, layouts, cameras and environment maps.
 
 pub mod camera;
+pub mod edit;
 pub mod environment;
 pub mod layout;
 pub mod mesh;
@@ -11,6 +12,7 @@ pub mod synthetic;
 pub mod transform;
 
 pub use camera::Camera;
+pub use edit::{Edit, MaterialChange, MaterialEdit};
 pub use environment::Environment;
 pub use layout::Layout;
 pub use surfels::{quat_axes, sh_coeffs, Surfels, MAX_SH_DEGREE, SH_C0};
