@@ -85,7 +85,7 @@ fn edit_writes_a_new_state_and_refuses_bad_input() {
     ] {
         let mut a: Vec<&std::ffi::OsStr> = vec!["edit".as_ref(), input.as_os_str()];
         a.extend(["-o".as_ref(), o.as_os_str()]);
-        a.extend(args.iter().map(|s| std::ffi::OsStr::new(s)));
+        a.extend(args.iter().map(std::ffi::OsStr::new));
         let r = lightfuse(&a);
         let err = String::from_utf8_lossy(&r.stderr);
         assert_eq!(r.status.code(), Some(2), "{args:?}: {err}");
