@@ -308,6 +308,13 @@ def _run(a, out: str, final: str, t0: float) -> None:
                 runs.append({"env_rel": env_rel, "prov": prov,
                              "prefix": f"{name}/{os.path.splitext(os.path.basename(env_rel))[0]}" if is_test else name,
                              "seed": a.seed * 1000 + k * 10 + j})
+            if is_test:
+                # Novel-state synthesis (the paper's Table 2): the test layout under each training
+                # state's own lighting, the very environment file that state was rendered with.
+                for i, t in enumerate(states):
+                    runs.append({"env_rel": t["environment"], "prov": t["environment_source"],
+                                 "prefix": f"{name}/{t['name']}", "training_state": t["name"],
+                                 "seed": a.seed * 1000 + 900 + i})
             geo_prefix = name
             for sub in ("depth", "normal", "mask", "albedo"):
                 os.makedirs(os.path.join(out, geo_prefix, sub), exist_ok=True)
@@ -331,8 +338,11 @@ def _run(a, out: str, final: str, t0: float) -> None:
                     if not a.quiet:
                         print(f"[generate] {name} {os.path.basename(run['env_rel'])} view {i + 1}/{len(cams)} "
                               f"({time.time() - t0:.0f} s)", flush=True)
-                rels.append({"environment": run["env_rel"], "environment_source": run["prov"],
-                             "render_seed": run["seed"], "frames": frames})
+                rel = {"environment": run["env_rel"], "environment_source": run["prov"],
+                       "render_seed": run["seed"], "frames": frames}
+                if "training_state" in run:
+                    rel["training_state"] = run["training_state"]
+                rels.append(rel)
             st["object_poses"] = poses(arrangements[k])
             if is_test:
                 st["relight"] = rels

@@ -26,25 +26,18 @@ echo "== rendering state0's cameras with LightFuse's one-bounce path tracer"
 "$lf" render "$out/scene.glb" --state state0 --cameras "$out/dataset" --spp 32 --out "$out/render/state0"
 echo "== against the dataset's Cycles images (full bounces, full-resolution environment)"
 .venv/bin/python blender/compare_renders.py --ref "$out/dataset/state0" --test "$out/render/state0" || true
-echo "== stage 1: reconstructing the training states (lightfuse reconstruct, fast preset)"
-"$lf" reconstruct "$out/dataset" -o "$out/recon"
-echo "== stage 2: refining its geometry for ray tracing (lightfuse refine, fast preset)"
-"$lf" refine "$out/dataset" "$out/recon"
-echo "== stage 3: inverse rendering of materials and each state's environment (lightfuse invert, fast preset)"
-"$lf" invert "$out/dataset" "$out/recon"
-echo "== the reconstruction in the test state's layout (baked appearance, 2DGS splatting)"
+echo "== stages 1-3 and the evaluation (lightfuse run, fast preset): reconstruct, refine for ray tracing, invert materials and environments, relight the test arrangement"
+"$lf" run "$out/dataset" -o "$out/recon"
 python3 - "$out/dataset/dataset.json" "$out/test_layout.json" <<'PY'
 import json, sys
 d = json.load(open(sys.argv[1]))
 test = next(s for s in d["states"] if s["split"] == "test")
 json.dump({"format": "lightfuse-layout/1", "objects": test["object_poses"]}, open(sys.argv[2], "w"), indent=1)
-print("test state:", test["name"])
 PY
 test_state=$(python3 -c 'import json,sys; print(next(s["name"] for s in json.load(open(sys.argv[1]))["states"] if s["split"] == "test"))' "$out/dataset/dataset.json")
-"$lf" render "$out/recon/scene.glb" --layout "$out/test_layout.json" --cameras "$out/dataset" --frames "$test_state" --baked --out "$out/recon/$test_state"
 echo "== the relightable scene edited: the test layout, under an environment no training state had"
 test_env=$(python3 -c 'import json,sys; print(next(s for s in json.load(open(sys.argv[1]))["states"] if s["split"] == "test")["relight"][0]["environment"])' "$out/dataset/dataset.json")
 "$lf" edit "$out/recon/relightable.glb" -o "$out/recon/relit.glb" --name relit --layout "$out/test_layout.json" --env "$out/dataset/$test_env"
 echo "   render it: $lf render $out/recon/relit.glb --state relit --cameras $out/dataset --frames $test_state --spp 32 --out $out/recon/relit"
-echo "done: $out/recon/scene.glb (reconstruction; report.json beside it), $out/recon/refined.glb (refined for ray tracing; refine/report.json), $out/recon/relightable.glb (materials and recovered environments; invert/report.json), $out/recon/$test_state/ (its test-layout renders), $out/recon/relit.glb (the test layout under a new environment)"
+echo "done: $out/recon/scene.glb (reconstruction; report.json beside it), $out/recon/refined.glb (refined for ray tracing; refine/report.json), $out/recon/relightable.glb (materials and recovered environments; invert/report.json), $out/recon/eval/ (eval.md: the relighting tables; images/: Cycles | LightFuse | Baked | No re-tracing | error per view), $out/recon/relit.glb (the test layout under a new environment)"
 echo "done: $out/scene.glb (open in any KHR_gaussian_splatting viewer), $out/scene.usda, $out/scene.ply"

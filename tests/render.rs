@@ -100,6 +100,14 @@ fn white_furnace_naive_estimator() {
     furnace_with(mat([1.0; 3], 1.0, 0.5), Strategy::Naive);
 }
 
+/// No re-tracing (`Strategy::Unshadowed`) on a lone convex sphere: nothing occludes or
+/// inter-reflects, so it is the full estimator's integral; same furnace, same bounds.
+#[test]
+fn white_furnace_unshadowed_estimator() {
+    furnace_with(mat([1.0; 3], 0.0, 1.0), Strategy::Unshadowed);
+    furnace_with(mat([1.0; 3], 1.0, 0.5), Strategy::Unshadowed);
+}
+
 #[test]
 fn white_furnace_rough_metal_sphere() {
     furnace(mat([1.0; 3], 1.0, 0.5));

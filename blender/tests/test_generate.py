@@ -23,9 +23,14 @@ def test_tiny_dataset_is_fast_and_valid(tiny_dataset, schema):
     train = [s for s in ds["states"] if s["split"] == "train"]
     test = [s for s in ds["states"] if s["split"] == "test"]
     assert len(train) == 2 and len(test) == 1
-    assert len(test[0]["relight"]) == 2
+    relight = [r for r in test[0]["relight"] if "training_state" not in r]
+    novel = [r for r in test[0]["relight"] if "training_state" in r]
+    assert len(relight) == 2
+    # novel-state synthesis: the test layout under every training state's own environment file
+    assert [(r["training_state"], r["environment"]) for r in novel] == [
+        (s["name"], s["environment"]) for s in train]
     train_envs = {s["environment_source"]["name"] for s in train}
-    test_envs = {r["environment_source"]["name"] for r in test[0]["relight"]}
+    test_envs = {r["environment_source"]["name"] for r in relight}
     assert not train_envs & test_envs, "test environments must not be used in training"
     assert 3 <= len(ds["objects"]) <= 5
     for o in ds["objects"]:  # ground-truth material, evaluation only

@@ -59,6 +59,45 @@ pub enum Command {
     /// Edit a scene: a new named state from a layout, per-object materials and a new
     /// environment, written as .glb, .gltf or .usda (materials are shared by every state).
     Edit(EditArgs),
+    /// Novel-state relighting and synthesis (the paper's Tables 1 and 2): every test state's
+    /// arrangement under its environments, LightFuse against Baked and No re-tracing, compared
+    /// with the dataset's Cycles frames; writes <work>/eval/{eval.json, eval.md, images/}.
+    Evaluate(EvaluateArgs),
+    /// Stages 1-3 and the evaluation in order; a stage whose output is newer than its inputs
+    /// is skipped, a killed run resumes from the stage's checkpoint.
+    Run(RunArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct EvaluateArgs {
+    /// Dataset (dataset.json or its folder) with a test state.
+    pub dataset: PathBuf,
+    /// Work folder holding stage 1's scene.glb and stage 3's relightable.glb.
+    pub work: PathBuf,
+    /// Samples per pixel of the path-traced rows (the paper's evaluation: 32).
+    #[arg(long, default_value_t = 32)]
+    pub spp: u32,
+    /// Seed of the Sobol scrambles.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u32,
+    /// Do not write the comparison images.
+    #[arg(long)]
+    pub no_images: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// Dataset (dataset.json or its folder).
+    pub dataset: PathBuf,
+    /// Work folder (every stage's output; see docs/formats.md).
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// Every stage's settings: "fast" (this machine, minutes) or "paper".
+    #[arg(long, default_value = "fast")]
+    pub preset: String,
+    /// Run every stage again even when its output is up to date.
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -378,6 +417,8 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Refine(a) => refine(cli, a),
         Command::Invert(a) => invert(cli, a),
         Command::Edit(a) => edit(cli, a),
+        Command::Evaluate(a) => evaluate(cli, a),
+        Command::Run(a) => run_all(cli, a),
     }
 }
 
@@ -439,7 +480,7 @@ fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
             let mut env = crate::io::exr::read_environment(p, &name)?;
-            render::check_latlong(&env, p, "EXR data window")?;
+            env.check_latlong(p, "EXR data window")?;
             env.clamp_negative();
             Some((env, a.env_rotation))
         }
@@ -850,6 +891,57 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
                 split(&s.heldout)
             );
         }
+    }
+    Ok(())
+}
+
+fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
+    use crate::eval::relight;
+    let report = relight::evaluate(&relight::Options {
+        dataset: a.dataset.clone(),
+        work: a.work.clone(),
+        spp: a.spp,
+        seed: a.seed,
+        images: !a.no_images,
+        quiet: cli.quiet || cli.json,
+    })?;
+    if cli.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&report).expect("report serialises")
+        );
+    } else if !cli.quiet {
+        eprintln!(
+            "wrote {} in {:.0} s\n",
+            a.work.join("eval").join("eval.md").display(),
+            report.seconds
+        );
+        println!("{}", relight::markdown(&report));
+    }
+    Ok(())
+}
+
+fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
+    use crate::stages::pipeline;
+    let steps = pipeline::run(&pipeline::Options {
+        dataset: a.dataset.clone(),
+        work: a.out.clone(),
+        preset: a.preset.clone(),
+        force: a.force,
+        quiet: cli.quiet || cli.json,
+    })?;
+    let eval_md = a.out.join("eval").join("eval.md");
+    if cli.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&steps).expect("steps serialise")
+        );
+    } else if !cli.quiet {
+        for s in &steps {
+            eprintln!("  {}: {} ({:.0} s)", s.step, s.outcome, s.seconds);
+        }
+        let table = std::fs::read_to_string(&eval_md).map_err(|e| Error::io(&eval_md, e))?;
+        println!("{table}");
     }
     Ok(())
 }

@@ -138,21 +138,6 @@ fn select_state(scene: &Scene, a: &RenderArgs) -> Result<State> {
     }
 }
 
-/// Refuses anything but an equirectangular (2:1) map.
-pub(crate) fn check_latlong(env: &Environment, file: &Path, field: &str) -> Result<()> {
-    if env.width != 2 * env.height {
-        return Err(Error::invalid(
-            file,
-            field,
-            format!(
-                "expected an equirectangular environment with width = 2 x height, found {}x{}",
-                env.width, env.height
-            ),
-        ));
-    }
-    Ok(())
-}
-
 /// `--env` (with `--env-rotation`, default 0), else the state's environment and rotation
 /// (`--env-rotation` then overrides its rotation).
 fn select_environment<'s>(
@@ -166,7 +151,7 @@ fn select_environment<'s>(
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
         let mut env = crate::io::exr::read_environment(path, &name)?;
-        check_latlong(&env, path, "EXR data window")?;
+        env.check_latlong(path, "EXR data window")?;
         env.clamp_negative();
         return Ok((
             std::borrow::Cow::Owned(env),
@@ -182,7 +167,7 @@ fn select_environment<'s>(
         ))
     })?;
     let env = &scene.environments[r.index];
-    check_latlong(env, &a.scene, &format!("environments[{}]", r.index))?;
+    env.check_latlong(&a.scene, &format!("environments[{}]", r.index))?;
     Ok((
         std::borrow::Cow::Borrowed(env),
         a.env_rotation.unwrap_or(r.rotation_deg),
@@ -194,15 +179,7 @@ fn select_environment<'s>(
 fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Result<()> {
     let views = read_views(&a.cameras, a.frames.as_deref(), &state.name)?;
     let started = Instant::now();
-    let placements: Vec<crate::splat::Placement> = scene
-        .components
-        .iter()
-        .zip(&state.transforms)
-        .map(|(c, t)| crate::splat::Placement {
-            surfels: &c.surfels,
-            transform: *t,
-        })
-        .collect();
+    let placements = crate::splat::placements(scene, state);
     let mut files = Vec::new();
     for view in &views {
         let img = crate::splat::forward(&placements, &view.camera).image;

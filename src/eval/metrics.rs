@@ -46,6 +46,44 @@ pub fn psnr_srgb(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
     psnr_mapped(a, b, srgb_encode)
 }
 
+/// PSNR in dB of scene-linear HDR images, unclamped, with the reference's largest channel
+/// value as the peak (so a brighter scene is not judged on a [0, 1] clip of itself).
+pub fn psnr_hdr(rendered: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
+    check(rendered, reference);
+    let peak = reference
+        .iter()
+        .flat_map(|p| p.iter().map(|&v| v as f64))
+        .fold(0.0, f64::max)
+        .max(1e-6);
+    let se: f64 = rendered
+        .par_iter()
+        .zip(reference)
+        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>())
+        .sum();
+    let mse = se / (3 * rendered.len()) as f64;
+    10.0 * (peak * peak / mse).log10()
+}
+
+/// The 8-bit sRGB image a PNG of `img` holds, as values k / 255: clamp to [0, 1], sRGB OETF,
+/// round to the nearest code (what evaluations on 8-bit images compare).
+pub fn srgb8(img: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    img.par_iter()
+        .map(|p| p.map(|v| (srgb_encode(if v.is_nan() { 0.0 } else { v }) * 255.0).round() / 255.0))
+        .collect()
+}
+
+/// PSNR on 8-bit sRGB images ([`srgb8`]), peak 1.
+pub fn psnr_srgb8(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    check(a, b);
+    psnr_mapped(&srgb8(a), &srgb8(b), |x| x)
+}
+
+/// Mean SSIM on 8-bit sRGB images ([`srgb8`]): 3DGS's (11×11 Gaussian window, σ = 1.5).
+pub fn ssim_srgb8(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 {
+    check(a, b);
+    ssim(&srgb8(a), &srgb8(b), width, height)
+}
+
 /// Mean SSIM of the images as given (see [`crate::optim::ssim`]).
 pub fn ssim(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 {
     crate::optim::ssim::ssim(a, b, width, height) as f64

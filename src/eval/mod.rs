@@ -5,6 +5,7 @@ pub mod geometry;
 pub mod lighting;
 pub mod metrics;
 pub mod pose;
+pub mod relight;
 pub mod report;
 
 pub use metrics::{depth_error, psnr, psnr_srgb, srgb_encode, ssim, ssim_srgb, DepthError};

@@ -75,6 +75,10 @@ pub struct Frame {
 #[derive(Deserialize, Debug, Clone)]
 pub struct Relight {
     pub environment: String,
+    /// Novel-state synthesis (the paper's Table 2): this run is the test layout under that
+    /// training state's own environment; None for an environment no training state saw.
+    #[serde(default)]
+    pub training_state: Option<String>,
     #[serde(default)]
     pub frames: Vec<Frame>,
 }
@@ -280,6 +284,18 @@ impl Dataset {
                 .map(|i| [p[0][i], p[1][i], p[2][i]])
                 .collect(),
         ))
+    }
+
+    /// Ground truth, evaluation only: planes `names` of the image `relative` (a frame's file),
+    /// checked to be `camera`'s size; errors name the file (missing, a channel absent, or
+    /// another size).
+    pub fn frame_planes(
+        &self,
+        relative: &str,
+        names: &[&str],
+        camera: &Camera,
+    ) -> Result<Vec<Vec<f32>>> {
+        read_planes(&self.path(relative), names, camera)
     }
 
     /// Ground truth, evaluation only: the environment that lit state `k`, read from its

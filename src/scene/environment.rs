@@ -13,6 +13,21 @@ pub struct Environment {
 }
 
 impl Environment {
+    /// Refuses anything but an equirectangular (2:1) map; the error names `file` and `field`.
+    pub fn check_latlong(&self, file: &std::path::Path, field: &str) -> crate::error::Result<()> {
+        if self.width != 2 * self.height {
+            return Err(crate::error::Error::invalid(
+                file,
+                field,
+                format!(
+                    "expected an equirectangular environment with width = 2 x height, found {}x{}",
+                    self.width, self.height
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     pub fn new(
         name: impl Into<String>,
         width: usize,

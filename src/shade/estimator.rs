@@ -122,6 +122,12 @@ pub enum Strategy {
     /// where it meets a secondary record that record draws one more cosine-hemisphere direction
     /// and sees the environment through its transmittance. Unbiased, only noisier.
     Naive,
+    /// No re-tracing (a ReCap-like baseline of `lightfuse evaluate`): the primary record lit by
+    /// the environment as if nothing else were in the scene. The same next-event sample and
+    /// BSDF sample as [`Strategy::Full`], combined by the same MIS weights, but no visibility
+    /// ray and no continuation ray: every direction sees the environment (no shadows, no
+    /// inter-reflection). Camera rays still composite the scene.
+    Unshadowed,
 }
 
 /// The one-bounce estimator over one placed scene and one environment.
@@ -265,6 +271,9 @@ impl<'a> Estimator<'a> {
                 match self.strategy {
                     Strategy::Full => self.shade_primary(&s, -d, a, sampler, index, &mut p),
                     Strategy::Naive => self.shade_naive(&s, -d, a, sampler, index, &mut p),
+                    Strategy::Unshadowed => {
+                        self.shade_unshadowed(&s, -d, a, sampler, index, &mut p)
+                    }
                 }
             }
         }
@@ -368,6 +377,54 @@ impl<'a> Estimator<'a> {
                     });
                 }
             }
+        }
+    }
+
+    /// [`Strategy::Unshadowed`]'s terms: [`Estimator::shade_primary`]'s next-event sample and
+    /// escaped continuation with visibility 1 and nothing traced.
+    fn shade_unshadowed(
+        &self,
+        s: &Shading,
+        wo: Vec3,
+        a: f32,
+        sampler: &Sampler,
+        index: u32,
+        p: &mut PathReplay,
+    ) {
+        let es = self.env.sample(sampler.get_2d(index, dim::ENV_NEE));
+        if es.pdf > 0.0 {
+            let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
+            if f.iter().any(|&v| v > 0.0) {
+                let w = power_heuristic(es.pdf, brdf::pdf(s.n, wo, es.dir, &s.material));
+                p.push(Term {
+                    // Grouped as shade_primary's a · (T · w / pdf) with T = 1.
+                    scale: a * (w / es.pdf),
+                    primary: Some(Bounce {
+                        n: s.n,
+                        wo,
+                        wi: es.dir,
+                        f,
+                    }),
+                    secondary: None,
+                    env_dir: es.dir,
+                });
+            }
+        }
+        let u_lobe = sampler.get(index, dim::LOBE);
+        let u_dir = sampler.get_2d(index, dim::BSDF);
+        if let Some(bs) = brdf::sample(s.n, wo, &s.material, u_dir, u_lobe) {
+            let w = power_heuristic(bs.pdf, self.env.pdf(bs.wi));
+            p.push(Term {
+                scale: a * w / bs.pdf,
+                primary: Some(Bounce {
+                    n: s.n,
+                    wo,
+                    wi: bs.wi,
+                    f: brdf::eval_f_cos(s.n, wo, bs.wi, &s.material),
+                }),
+                secondary: None,
+                env_dir: bs.wi,
+            });
         }
     }
 

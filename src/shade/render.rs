@@ -9,7 +9,11 @@
 
 use crate::io::exr::Channels;
 use crate::scene::Camera;
-use crate::shade::estimator::{Estimator, Pixel, PixelFilter};
+use crate::shade::brdf::Material;
+use crate::shade::estimator::{camera_forward, Estimator, Pixel, PixelFilter};
+use crate::shade::sobol::Sampler;
+use crate::trace::{Placed, SurfaceRecord, TraceRay};
+use glam::Vec3;
 use rayon::prelude::*;
 
 /// Image tiles are this many pixels square; a tile is one rayon task.
@@ -91,4 +95,168 @@ pub fn render_image(
         },
         rays,
     )
+}
+
+/// Every path sample's camera ray and primary record of one camera, traced once. Geometry and
+/// placement alone decide them (the camera ray's filter jitter comes from the pixel's Sobol
+/// stream, the record from compositing), so renders of the same view under several
+/// environments, or with other materials, can share them: [`Primaries::shade`] then traces only
+/// the rays after the primary hit. Pixel (x, y) draws from `Sampler::new(y·w + x, seed)`, as
+/// [`render_image`] does, so the two agree sample for sample.
+///
+/// Memory: 88 bytes per sample (a 32-byte ray and a 56-byte record), e.g. 35 MB for 128×96 at
+/// 32 spp, 216 MB for 320×240.
+pub struct Primaries {
+    pub camera: Camera,
+    pub spp: u32,
+    pub seed: u32,
+    /// Pixel-major: sample i of pixel p at `p · spp + i`.
+    samples: Vec<(TraceRay, SurfaceRecord)>,
+    /// The record at each pixel's centre (the AOVs).
+    centre: Vec<SurfaceRecord>,
+    /// Camera rays traced.
+    pub rays: u64,
+}
+
+/// Per-pixel AOVs of [`Primaries`]: from the record at the pixel centre (as [`render_image`]'s),
+/// zero where nothing is hit.
+pub struct Aovs {
+    /// Mean coverage over the samples.
+    pub alpha: Vec<f32>,
+    /// Planar depth (DESIGN §2).
+    pub depth: Vec<f32>,
+    /// Unit world normal facing the camera.
+    pub normal: Vec<[f32; 3]>,
+    /// Base colour.
+    pub albedo: Vec<[f32; 3]>,
+}
+
+impl Primaries {
+    /// Traces every sample's camera ray of `camera` through `scene` (rayon over rows).
+    pub fn trace(
+        scene: &Placed,
+        filter: &PixelFilter,
+        camera: &Camera,
+        spp: u32,
+        seed: u32,
+    ) -> Primaries {
+        let (w, h) = (camera.w, camera.h);
+        type Row = (Vec<(TraceRay, SurfaceRecord)>, Vec<SurfaceRecord>);
+        let rows: Vec<Row> = (0..h)
+            .into_par_iter()
+            .map(|y| {
+                let mut samples = Vec::with_capacity((w * spp) as usize);
+                let mut centre = Vec::with_capacity(w as usize);
+                for x in 0..w {
+                    let sampler = Sampler::new(y * w + x, seed);
+                    for i in 0..spp {
+                        let (o, d) = filter.camera_ray(camera, (x, y), &sampler, i);
+                        let ray = TraceRay {
+                            origin: o,
+                            dir: d,
+                            t_min: 0.0,
+                            t_max: f32::INFINITY,
+                        };
+                        samples.push((ray, scene.composite(o, d, 0.0, f32::INFINITY)));
+                    }
+                    let (o, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+                    centre.push(scene.composite(o, d, 0.0, f32::INFINITY));
+                }
+                (samples, centre)
+            })
+            .collect();
+        let mut samples = Vec::with_capacity((w * h * spp) as usize);
+        let mut centre = Vec::with_capacity((w * h) as usize);
+        for (s, c) in rows {
+            samples.extend(s);
+            centre.extend(c);
+        }
+        Primaries {
+            camera: *camera,
+            spp,
+            seed,
+            samples,
+            centre,
+            rays: w as u64 * h as u64 * (spp as u64 + 1),
+        }
+    }
+
+    /// The pixels' AOVs.
+    pub fn aovs(&self) -> Aovs {
+        let (w, spp) = (self.camera.w as usize, self.spp as usize);
+        let fwd = camera_forward(&self.camera);
+        let n = self.centre.len();
+        let mut a = Aovs {
+            alpha: vec![0.0; n],
+            depth: vec![0.0; n],
+            normal: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+        };
+        for (p, rec) in self.centre.iter().enumerate() {
+            let s = &self.samples[p * spp..(p + 1) * spp];
+            a.alpha[p] = s.iter().map(|(_, r)| r.alpha).sum::<f32>() / spp.max(1) as f32;
+            if rec.hits > 0 && rec.alpha > 0.0 {
+                let (x, y) = ((p % w) as f32 + 0.5, (p / w) as f32 + 0.5);
+                let (_, d) = self.camera.ray(x, y);
+                a.depth[p] = rec.mean_depth() * Vec3::from_array(d).dot(fwd);
+                a.normal[p] = rec.unit_normal();
+                a.albedo[p] = rec.mean_base_color();
+            }
+        }
+        a
+    }
+
+    /// The image `estimator` renders from these primaries (its scene must be the one traced),
+    /// once per entry of `base_color_scales`: each record's mean base colour multiplied by the
+    /// scale and clamped to [0, 1] ([1, 1, 1]: as rendered), every other decision the same
+    /// (the path's sampling was drawn with the unscaled materials and is held fixed, as in path
+    /// replay, so each image is an unbiased estimate with its own materials). Returns the images
+    /// (row-major mean radiance per pixel) and the rays traced after the primary hit.
+    pub fn shade(
+        &self,
+        estimator: &Estimator,
+        base_color_scales: &[[f32; 3]],
+    ) -> (Vec<Vec<[f32; 3]>>, u64) {
+        let spp = self.spp as usize;
+        let k = base_color_scales.len();
+        let scaled = |m: &Material, s: &[f32; 3]| Material {
+            base_color: [0, 1, 2].map(|c| (m.base_color[c] * s[c]).clamp(0.0, 1.0)),
+            ..*m
+        };
+        let per_pixel: Vec<(Vec<[f32; 3]>, u64)> = (0..self.centre.len())
+            .into_par_iter()
+            .with_min_len(64)
+            .map(|p| {
+                let sampler = Sampler::new(p as u32, self.seed);
+                let mut acc = vec![[0.0f32; 3]; k];
+                let mut rays = 0u64;
+                for (i, (ray, rec)) in self.samples[p * spp..(p + 1) * spp].iter().enumerate() {
+                    let path = estimator.replay_from(*ray, *rec, &sampler, i as u32);
+                    rays += path.rays as u64;
+                    for (a, s) in acc.iter_mut().zip(base_color_scales) {
+                        let v = if *s == [1.0; 3] {
+                            path.radiance(estimator.env)
+                        } else {
+                            let m = [scaled(&path.materials[0], s), scaled(&path.materials[1], s)];
+                            path.radiance_with(&m, estimator.env)
+                        };
+                        for c in 0..3 {
+                            a[c] += v[c];
+                        }
+                    }
+                }
+                let inv = 1.0 / spp.max(1) as f32;
+                (acc.into_iter().map(|a| a.map(|v| v * inv)).collect(), rays)
+            })
+            .collect();
+        let mut images = vec![Vec::with_capacity(self.centre.len()); k];
+        let mut rays = 0;
+        for (px, r) in per_pixel {
+            rays += r;
+            for (img, v) in images.iter_mut().zip(px) {
+                img.push(v);
+            }
+        }
+        (images, rays)
+    }
 }

@@ -74,6 +74,22 @@ pub struct Placement<'a> {
     pub transform: Rigid,
 }
 
+/// Every component of `scene` placed as `state` places it (eq. state-assembly).
+pub fn placements<'a>(
+    scene: &'a crate::scene::Scene,
+    state: &crate::scene::State,
+) -> Vec<Placement<'a>> {
+    scene
+        .components
+        .iter()
+        .zip(&state.transforms)
+        .map(|(c, t)| Placement {
+            surfels: &c.surfels,
+            transform: *t,
+        })
+        .collect()
+}
+
 impl<'a> Placement<'a> {
     /// Surfels already in the world frame.
     pub fn world(surfels: &'a Surfels) -> Self {

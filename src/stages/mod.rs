@@ -2,5 +2,6 @@
 
 pub mod common;
 pub mod invert;
+pub mod pipeline;
 pub mod reconstruct;
 pub mod refine;

@@ -9,7 +9,7 @@ use crate::eval::lighting::{
     compare_albedo, compare_environments, compare_materials, AlbedoFigures, EnvFigures,
     MaterialFigures,
 };
-use crate::eval::metrics::psnr_srgb;
+use crate::eval::metrics::{psnr_hdr, psnr_srgb};
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{EnvRef, Scene, Surfels};
@@ -157,16 +157,6 @@ fn scene_path(opts: &Options) -> Result<PathBuf> {
     ))
 }
 
-/// PSNR with a stated peak over pairs of (rendered, captured) linear colours.
-fn psnr_peak(pairs: &[([f32; 3], [f32; 3])], peak: f64) -> f64 {
-    let se: f64 = pairs
-        .iter()
-        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>())
-        .sum();
-    let mse = se / (3 * pairs.len().max(1)) as f64;
-    10.0 * (peak * peak / mse).log10()
-}
-
 /// A view's albedo pass from the dataset, when it has one.
 type AlbedoPass = Option<Vec<[f32; 3]>>;
 
@@ -222,11 +212,6 @@ fn image_figures(
     if pairs.is_empty() {
         return ImageFigures::default();
     }
-    let peak = pairs
-        .iter()
-        .flat_map(|(_, b)| b.iter().map(|&v| v as f64))
-        .fold(0.0, f64::max)
-        .max(1e-6);
     let (a, b): (Vec<[f32; 3]>, Vec<[f32; 3]>) = pairs.iter().copied().unzip();
     let part = |want: bool| {
         let (pa, pb): (Vec<[f32; 3]>, Vec<[f32; 3]>) = pairs
@@ -240,7 +225,7 @@ fn image_figures(
     ImageFigures {
         views: views.iter().map(|o| o.view).collect(),
         pixels: pairs.len(),
-        psnr_hdr_db: psnr_peak(&pairs, peak),
+        psnr_hdr_db: psnr_hdr(&a, &b),
         psnr_srgb_db: psnr_srgb(&a, &b),
         psnr_srgb_surface_db: part(true),
         psnr_srgb_background_db: part(false),

@@ -1,0 +1,80 @@
+"""`lightfuse evaluate` and `lightfuse run` end to end on the tiny generated dataset: the test
+state's arrangement under each unseen environment (Table 1) and under each training state's
+recovered lighting (Table 2), three rows (LightFuse, Baked, No re-tracing) against the Cycles
+frames, eval.json / eval.md / a comparison strip per view; `run` skips the stages whose outputs
+are up to date; bad input is one clear error with exit code 2 and nothing written. (The figures
+are measured on the demo and reported in the README; `tests/evaluate.rs` checks the pieces.)"""
+import json
+import math
+import shutil
+
+from test_reconstruct import ok, run, stages
+
+ROWS = {"lightfuse", "baked", "no_retracing"}
+
+
+def work_with_stage3(tiny_dataset, tmp_path):
+    work = stages(tiny_dataset, tmp_path, refine=True)
+    ok("--quiet", "invert", tiny_dataset["path"], work, "--iterations", "4", "--eval-spp", "1",
+       "--eval-stride", "4")
+    return work
+
+
+def test_run_skips_finished_stages_and_evaluate_writes_both_tables(tiny_dataset, tmp_path):
+    ds = tiny_dataset["path"]
+    work = work_with_stage3(tiny_dataset, tmp_path)
+    relightable = (work / "relightable.glb").read_bytes()
+    p = run("run", ds, "-o", work)
+    assert p.returncode == 0, p.stderr
+    for stage in ("stage 1: reconstruct", "stage 2: refine", "stage 3: invert"):
+        assert f"{stage}: skipped (up to date)" in p.stderr, p.stderr
+    assert "evaluate: ran" in p.stderr and "Table 1" in p.stdout, p.stderr
+    assert (work / "relightable.glb").read_bytes() == relightable
+    assert json.loads((work / "run.json").read_text())["preset"] == "fast"
+    # Now everything is up to date.
+    p = run("run", ds, "-o", work)
+    assert p.returncode == 0 and "evaluate: skipped (up to date)" in p.stderr, p.stderr
+
+    report = json.loads(ok("--json", "evaluate", ds, work, "--spp", "2"))
+    assert report["format"] == "lightfuse-eval/1" and report["spp"] == 2
+    assert report["denoise"] == "none"
+    test = next(s for s in tiny_dataset["json"]["states"] if s["split"] == "test")
+    assert len(report["runs"]) == len(test["relight"])
+    synthesis = [r for r in report["runs"] if r["training_state"]]
+    assert [r["training_state"] for r in synthesis] == ["state0", "state1"]
+    assert all(r["lit_by"].startswith("recovered") for r in synthesis)
+    assert all(r["lit_by"].startswith("dataset") for r in report["runs"] if not r["training_state"])
+    assert set(report["relighting"]) == ROWS and set(report["synthesis"]) == ROWS
+    assert report["relighting"]["baked"]["rescaled"] is None
+    assert all(v > 0 for v in report["albedo_ratio"]) and report["albedo_pixels"] > 0
+    for r in report["runs"]:
+        assert len(r["views"]) == len(test["relight"][0]["frames"])
+        for v in r["views"]:
+            assert set(v["rows"]) == ROWS
+            assert (work / "eval" / v["image"]).is_file()
+            for row in v["rows"].values():
+                for m in [row["raw"]] + ([row["rescaled"]] if row["rescaled"] else []):
+                    assert math.isfinite(m["psnr_srgb_db"]) and -1 <= m["ssim_srgb"] <= 1, m
+    md = (work / "eval" / "eval.md").read_text()
+    assert "Table 1" in md and "Table 2" in md and "No re-tracing" in md
+
+
+def test_evaluate_bad_input_is_one_clear_error_and_writes_nothing(tiny_dataset, tmp_path):
+    ds = tiny_dataset["path"]
+    work = stages(tiny_dataset, tmp_path)
+    p = run("evaluate", ds, work)
+    assert p.returncode == 2 and "relightable.glb" in p.stderr and "invert" in p.stderr, p.stderr
+    assert "panicked" not in p.stderr and not (work / "eval").exists()
+
+    # A dataset without a test state has nothing to compare against.
+    other = tmp_path / "no_test"
+    shutil.copytree(ds, other)
+    d = json.loads((other / "dataset.json").read_text())
+    d["states"] = [s for s in d["states"] if s["split"] != "test"]
+    (other / "dataset.json").write_text(json.dumps(d))
+    for args in (("evaluate", other, work), ("run", other, "-o", tmp_path / "w2")):
+        p = run(*args)
+        assert p.returncode == 2 and "test state" in p.stderr and "panicked" not in p.stderr, p.stderr
+    assert not (work / "eval").exists() and not (tmp_path / "w2").exists()
+    p = run("evaluate", ds, work, "--spp", "0")
+    assert p.returncode == 2 and "--spp" in p.stderr, p.stderr

@@ -1,0 +1,596 @@
+//! `lightfuse evaluate`: the paper's experiment (§ Novel-State Relighting, Tables 1 and 2).
+//!
+//! For every test state of a dataset, its arrangement (the dataset's object poses, the target
+//! transforms) is rendered from the state's cameras and compared with the Cycles frames:
+//! - **relighting** (Table 1): under each environment no training state saw, the dataset's own
+//!   file of it;
+//! - **synthesis** (Table 2): under a training state's lighting (relight runs with
+//!   `training_state`), rendered with that state's *recovered* environment, against Cycles under
+//!   the true one.
+//!
+//! Rows, one image each per (run, view):
+//! - **LightFuse**: the relightable scene (stage 3) placed in the test layout and path traced
+//!   ([`Strategy::Full`]): shadows, highlights and inter-reflection re-traced for the layout;
+//! - **Baked**: stage 1's splatting appearance moved to the layout (what methods that bake
+//!   appearance can do; it cannot relight), over the run's environment where it is not opaque
+//!   (any method shows the environment behind the scene);
+//! - **No re-tracing**: the recovered materials lit by the run's environment without visibility
+//!   or indirect light ([`Strategy::Unshadowed`], a ReCap-like row).
+//!
+//! The traced rows share each view's primary records ([`Primaries`]): geometry and layout
+//! decide them, so every environment and both traced rows reuse one trace per view.
+//!
+//! Metrics per image: PSNR and SSIM (3DGS's: 11×11 Gaussian, σ 1.5) on 8-bit sRGB, and PSNR on
+//! scene-linear HDR with the reference's peak ([`crate::eval::metrics`]). Each traced row is
+//! also measured after the per-channel median albedo rescale (TensoIR/IRGS's convention): one
+//! ratio per scene, the median over the test views' surface pixels of true / recovered base
+//! colour ([`compare_albedo`]), every record's base colour multiplied by it (clamped to 1) and
+//! the same paths re-evaluated ([`Primaries::shade`]). Baked has no base colour to rescale.
+//! A row's figure is the mean over its images.
+//!
+//! Denoising: not yet. The paper's evaluation denoised its 32-spp renders (OptiX's HDR
+//! denoiser with albedo and normal guides); these images are compared as rendered, so the
+//! traced rows carry their Monte Carlo noise (the report's `denoise` says "none").
+
+use crate::error::{Error, Result};
+use crate::eval::lighting::compare_albedo;
+use crate::eval::metrics::{psnr_hdr, psnr_srgb8, srgb8, ssim_srgb8};
+use crate::io::dataset::{Dataset, Frame};
+use crate::scene::{Environment, Layout, Scene, State};
+use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
+use crate::shade::render::Primaries;
+use crate::shade::EnvMap;
+use crate::trace::TraceScene;
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The format tag of `eval.json`.
+pub const FORMAT: &str = "lightfuse-eval/1";
+
+/// The rows of the table, in order, with their keys in `eval.json`.
+pub const ROWS: [(&str, &str); 3] = [
+    ("lightfuse", "LightFuse"),
+    ("baked", "Baked"),
+    ("no_retracing", "No re-tracing"),
+];
+
+pub struct Options {
+    pub dataset: PathBuf,
+    pub work: PathBuf,
+    /// Samples per pixel of the traced rows (the paper: 32).
+    pub spp: u32,
+    pub seed: u32,
+    /// Write a comparison strip per (run, view) into `<work>/eval/images/`.
+    pub images: bool,
+    pub quiet: bool,
+}
+
+/// One image's figures.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct Metrics {
+    pub psnr_srgb_db: f64,
+    pub ssim_srgb: f64,
+    pub psnr_hdr_db: f64,
+}
+
+impl Metrics {
+    fn of(rendered: &[[f32; 3]], truth: &[[f32; 3]], w: u32, h: u32) -> Metrics {
+        Metrics {
+            psnr_srgb_db: psnr_srgb8(rendered, truth),
+            ssim_srgb: ssim_srgb8(rendered, truth, w as usize, h as usize),
+            psnr_hdr_db: psnr_hdr(rendered, truth),
+        }
+    }
+
+    fn mean(all: &[Metrics]) -> Metrics {
+        let n = all.len().max(1) as f64;
+        Metrics {
+            psnr_srgb_db: all.iter().map(|m| m.psnr_srgb_db).sum::<f64>() / n,
+            ssim_srgb: all.iter().map(|m| m.ssim_srgb).sum::<f64>() / n,
+            psnr_hdr_db: all.iter().map(|m| m.psnr_hdr_db).sum::<f64>() / n,
+        }
+    }
+}
+
+/// A row's figures: as rendered, and after the median albedo rescale (traced rows only).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct RowFigures {
+    pub raw: Metrics,
+    pub rescaled: Option<Metrics>,
+}
+
+fn mean_rows(items: &[&BTreeMap<String, RowFigures>]) -> BTreeMap<String, RowFigures> {
+    let mut out = BTreeMap::new();
+    for (key, _) in ROWS {
+        let rows: Vec<&RowFigures> = items.iter().filter_map(|m| m.get(key)).collect();
+        if rows.is_empty() {
+            continue;
+        }
+        let raw: Vec<Metrics> = rows.iter().map(|r| r.raw).collect();
+        let scaled: Vec<Metrics> = rows.iter().filter_map(|r| r.rescaled).collect();
+        out.insert(
+            key.to_string(),
+            RowFigures {
+                raw: Metrics::mean(&raw),
+                rescaled: (scaled.len() == rows.len()).then(|| Metrics::mean(&scaled)),
+            },
+        );
+    }
+    out
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ViewFigures {
+    /// The Cycles frame compared against (relative to the dataset).
+    pub frame: String,
+    /// The comparison strip (relative to `<work>/eval`), when written.
+    pub image: Option<String>,
+    pub rows: BTreeMap<String, RowFigures>,
+}
+
+/// One test state under one environment.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RunFigures {
+    pub state: String,
+    /// The dataset's environment file of the Cycles frames.
+    pub environment: String,
+    /// Synthesis runs: the training state whose lighting this is.
+    pub training_state: Option<String>,
+    /// What LightFuse and the other rows were lit with: the dataset's file, or the recovered
+    /// environment of `training_state` in the relightable scene.
+    pub lit_by: String,
+    pub views: Vec<ViewFigures>,
+    pub mean: BTreeMap<String, RowFigures>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Report {
+    pub format: String,
+    pub dataset: String,
+    pub relightable: String,
+    pub baked: String,
+    pub spp: u32,
+    pub seed: u32,
+    /// What denoised the traced rows: "none" (not implemented yet).
+    pub denoise: String,
+    /// Per-channel median of true / recovered base colour over the test views' surface pixels.
+    pub albedo_ratio: [f64; 3],
+    pub albedo_pixels: usize,
+    /// Table 1: the mean over every relighting run's images.
+    pub relighting: BTreeMap<String, RowFigures>,
+    /// Table 2: the mean over every synthesis run's images (empty without such runs).
+    pub synthesis: BTreeMap<String, RowFigures>,
+    pub runs: Vec<RunFigures>,
+    /// Rays traced (camera rays once per view, then the shading rays of every traced row).
+    pub rays: u64,
+    pub seconds: f64,
+}
+
+/// One run to evaluate: a test state's frames under one environment.
+struct Run<'d> {
+    state: usize,
+    environment: &'d str,
+    training_state: Option<&'d str>,
+    frames: &'d [Frame],
+}
+
+fn runs(d: &Dataset) -> Vec<Run<'_>> {
+    let mut out = Vec::new();
+    for (k, s) in d.states.iter().enumerate() {
+        if s.split != "test" {
+            continue;
+        }
+        if let (Some(env), false) = (&s.environment, s.frames.is_empty()) {
+            out.push(Run {
+                state: k,
+                environment: env,
+                training_state: None,
+                frames: &s.frames,
+            });
+        }
+        for r in &s.relight {
+            if !r.frames.is_empty() {
+                out.push(Run {
+                    state: k,
+                    environment: &r.environment,
+                    training_state: r.training_state.as_deref(),
+                    frames: &r.frames,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Refuses a dataset with nothing to evaluate against: no test state with frames.
+pub fn check_dataset(d: &Dataset) -> Result<()> {
+    if runs(d).is_empty() {
+        return Err(Error::invalid(
+            &d.file,
+            "states",
+            "expected a test state (split \"test\") with frames to compare against (blender/generate.py writes one with `relight` runs)",
+        ));
+    }
+    Ok(())
+}
+
+/// The scene a stage wrote into the work folder, or a clear error naming the stage to run.
+fn stage_scene(work: &Path, file: &str, d: &Dataset, stage: &str) -> Result<(PathBuf, Scene)> {
+    let path = work.join(file);
+    let scene = crate::stages::refine::run::read_stage_scene(
+        &path,
+        d,
+        &format!("run `{stage}` first (or `lightfuse run`)"),
+    )?;
+    Ok((path, scene))
+}
+
+/// The test state's arrangement in `scene`: the dataset's object poses (relative to the
+/// reference state, where every scene component is defined).
+fn test_state(scene: &Scene, d: &Dataset, k: usize) -> Result<State> {
+    let mut layout = Layout::default();
+    for o in &d.objects {
+        layout
+            .objects
+            .insert(o.name.clone(), d.object_pose(k, &o.name)?);
+    }
+    scene.state_from_layout(&d.states[k].name, &layout, &d.file)
+}
+
+/// The environment a run is lit with, and what it is.
+fn run_environment(
+    run: &Run,
+    d: &Dataset,
+    scene: &Scene,
+    scene_file: &Path,
+) -> Result<(EnvMap, String)> {
+    if let Some(t) = run.training_state {
+        let state = scene.state_index(t).map(|i| &scene.states[i]);
+        let Some(r) = state.and_then(|s| s.environment) else {
+            return Err(Error::invalid(
+                scene_file,
+                "states",
+                format!("expected training state {t:?} with its recovered environment (stage 3 writes one per training state)"),
+            ));
+        };
+        let env = &scene.environments[r.index];
+        return Ok((
+            EnvMap::new(env, r.rotation_deg),
+            format!("recovered: {}#{}", scene_file.display(), env.name),
+        ));
+    }
+    let path = d.path(run.environment);
+    let mut env: Environment = crate::io::exr::read_environment(&path, run.environment)?;
+    env.check_latlong(&path, "EXR data window")?;
+    env.clamp_negative();
+    Ok((
+        EnvMap::new(&env, 0.0),
+        format!("dataset: {}", run.environment),
+    ))
+}
+
+/// The environment along each pixel centre's camera ray.
+fn background(env: &EnvMap, camera: &crate::scene::Camera) -> Vec<[f32; 3]> {
+    (0..camera.h)
+        .flat_map(|y| (0..camera.w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let (_, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+            env.eval(Vec3::from_array(d))
+        })
+        .collect()
+}
+
+/// Runs the evaluation and writes `<work>/eval/{eval.json, eval.md}` (and the images).
+pub fn evaluate(opts: &Options) -> Result<Report> {
+    let t0 = Instant::now();
+    if opts.spp == 0 || opts.spp > crate::shade::sobol::MAX_SAMPLES {
+        return Err(Error::Usage(format!(
+            "--spp: expected 1 ..= {}, found {}",
+            crate::shade::sobol::MAX_SAMPLES,
+            opts.spp
+        )));
+    }
+    let d = Dataset::read(&opts.dataset)?;
+    check_dataset(&d)?;
+    let runs = runs(&d);
+    let (relit_file, relit) = stage_scene(&opts.work, "relightable.glb", &d, "lightfuse invert")?;
+    let (baked_file, baked) = stage_scene(&opts.work, "scene.glb", &d, "lightfuse reconstruct")?;
+    // Everything read and checked before anything is rendered or written.
+    let mut envs = Vec::with_capacity(runs.len());
+    for run in &runs {
+        envs.push(run_environment(run, &d, &relit, &relit_file)?);
+        for f in run.frames {
+            let p = d.path(&f.file_path);
+            if !p.is_file() {
+                return Err(Error::invalid(
+                    &d.file,
+                    "frames.file_path",
+                    format!("expected the Cycles frame {} (missing)", p.display()),
+                ));
+            }
+        }
+    }
+    let test_states: Vec<usize> = {
+        let mut v: Vec<usize> = runs.iter().map(|r| r.state).collect();
+        v.dedup();
+        v
+    };
+    let relit_states: Vec<State> = test_states
+        .iter()
+        .map(|&k| test_state(&relit, &d, k))
+        .collect::<Result<_>>()?;
+    let baked_states: Vec<State> = test_states
+        .iter()
+        .map(|&k| test_state(&baked, &d, k))
+        .collect::<Result<_>>()?;
+    let filter = PixelFilter::new(crate::shade::estimator::DEFAULT_FILTER_WIDTH);
+    let trace = TraceScene::new(&relit);
+
+    // The per-channel median albedo ratio, from the pixel-centre records of every test view.
+    let mut pairs = Vec::new();
+    for (si, &k) in test_states.iter().enumerate() {
+        let placed = trace.place_state(&relit_states[si]);
+        let Some(run) = runs.iter().find(|r| r.state == k) else {
+            continue;
+        };
+        for f in run.frames {
+            let Some(rel) = &f.albedo_file_path else {
+                continue;
+            };
+            let truth = d.frame_planes(rel, &["R", "G", "B"], &f.camera)?;
+            let p = Primaries::trace(&placed, &filter, &f.camera, 1, opts.seed);
+            let aovs = p.aovs();
+            for (i, (&z, &a)) in aovs.depth.iter().zip(&aovs.albedo).enumerate() {
+                let t = [truth[0][i], truth[1][i], truth[2][i]];
+                if z > 0.0 && t.iter().any(|&v| v > 0.0) {
+                    pairs.push((a, t));
+                }
+            }
+        }
+    }
+    let albedo = compare_albedo(&pairs);
+    let ratio = albedo
+        .ratio
+        .map(|r| if r.is_finite() { r as f32 } else { 1.0 });
+    let scales = [[1.0; 3], ratio];
+
+    let out_dir = opts.work.join("eval");
+    let total: u64 = runs.iter().map(|r| r.frames.len() as u64).sum();
+    let bar = crate::stages::common::Progress::new(opts.quiet, total, "evaluate");
+    let mut rays = 0u64;
+    let mut figures: Vec<RunFigures> = runs
+        .iter()
+        .zip(&envs)
+        .map(|(r, (_, lit_by))| RunFigures {
+            state: d.states[r.state].name.clone(),
+            environment: r.environment.to_string(),
+            training_state: r.training_state.map(str::to_string),
+            lit_by: lit_by.clone(),
+            views: Vec::new(),
+            mean: BTreeMap::new(),
+        })
+        .collect();
+    let mut strips: Vec<(PathBuf, image::RgbImage)> = Vec::new();
+    for (si, &k) in test_states.iter().enumerate() {
+        let placed = trace.place_state(&relit_states[si]);
+        let eps = self_hit_epsilon(&relit, &relit_states[si]);
+        let placements = crate::splat::placements(&baked, &baked_states[si]);
+        let my_runs: Vec<usize> = (0..runs.len()).filter(|&r| runs[r].state == k).collect();
+        let views = my_runs
+            .iter()
+            .map(|&r| runs[r].frames.len())
+            .max()
+            .unwrap_or(0);
+        for v in 0..views {
+            // One primary trace per distinct camera of this view index.
+            let mut primaries: Option<Primaries> = None;
+            for &r in &my_runs {
+                let Some(frame) = runs[r].frames.get(v) else {
+                    continue;
+                };
+                let cam = &frame.camera;
+                if primaries.as_ref().map(|p| &p.camera) != Some(cam) {
+                    let p = Primaries::trace(&placed, &filter, cam, opts.spp, opts.seed);
+                    rays += p.rays;
+                    primaries = Some(p);
+                }
+                let p = primaries.as_ref().expect("traced above");
+                let (w, h) = (cam.w, cam.h);
+                let truth = d.frame_planes(&frame.file_path, &["R", "G", "B"], cam)?;
+                let truth: Vec<[f32; 3]> = (0..truth[0].len())
+                    .map(|i| [truth[0][i], truth[1][i], truth[2][i]])
+                    .collect();
+                let env = &envs[r].0;
+                let bg = background(env, cam);
+                let mut traced = Vec::new();
+                for strategy in [Strategy::Full, Strategy::Unshadowed] {
+                    let est = Estimator::new(&placed, env, eps).with_strategy(strategy);
+                    let (images, n) = p.shade(&est, &scales);
+                    rays += n;
+                    traced.push(images);
+                }
+                let splat = crate::splat::forward(&placements, cam).image;
+                let baked_img: Vec<[f32; 3]> = (0..splat.color.len())
+                    .map(|i| {
+                        let t = 1.0 - splat.alpha[i].clamp(0.0, 1.0);
+                        [0, 1, 2].map(|c| splat.color[i][c] + t * bg[i][c])
+                    })
+                    .collect();
+                let row = |images: &[Vec<[f32; 3]>]| RowFigures {
+                    raw: Metrics::of(&images[0], &truth, w, h),
+                    rescaled: Some(Metrics::of(&images[1], &truth, w, h)),
+                };
+                let mut rows = BTreeMap::new();
+                rows.insert("lightfuse".to_string(), row(&traced[0]));
+                rows.insert(
+                    "baked".to_string(),
+                    RowFigures {
+                        raw: Metrics::of(&baked_img, &truth, w, h),
+                        rescaled: None,
+                    },
+                );
+                rows.insert("no_retracing".to_string(), row(&traced[1]));
+                let image = if opts.images {
+                    let run_name = Path::new(runs[r].environment)
+                        .file_stem()
+                        .map(|s| s.to_string_lossy().into_owned())
+                        .unwrap_or_default();
+                    let stem = Path::new(&frame.file_path)
+                        .file_stem()
+                        .map(|s| s.to_string_lossy().into_owned())
+                        .unwrap_or_else(|| format!("{v:03}"));
+                    let rel = format!(
+                        "images/{}/{}/{stem}.png",
+                        d.states[k].name,
+                        runs[r].training_state.unwrap_or(&run_name)
+                    );
+                    strips.push((
+                        out_dir.join(&rel),
+                        strip(&[&truth, &traced[0][0], &baked_img, &traced[1][0]], w, h),
+                    ));
+                    Some(rel)
+                } else {
+                    None
+                };
+                figures[r].views.push(ViewFigures {
+                    frame: frame.file_path.clone(),
+                    image,
+                    rows,
+                });
+                bar.inc(1);
+            }
+        }
+    }
+    bar.finish();
+    for f in &mut figures {
+        let rows: Vec<&BTreeMap<String, RowFigures>> = f.views.iter().map(|v| &v.rows).collect();
+        f.mean = mean_rows(&rows);
+    }
+    let pooled = |synthesis: bool| {
+        let rows: Vec<&BTreeMap<String, RowFigures>> = figures
+            .iter()
+            .filter(|f| f.training_state.is_some() == synthesis)
+            .flat_map(|f| f.views.iter().map(|v| &v.rows))
+            .collect();
+        mean_rows(&rows)
+    };
+    let report = Report {
+        format: FORMAT.into(),
+        dataset: d.file.display().to_string(),
+        relightable: relit_file.display().to_string(),
+        baked: baked_file.display().to_string(),
+        spp: opts.spp,
+        seed: opts.seed,
+        denoise: "none".into(),
+        albedo_ratio: albedo.ratio,
+        albedo_pixels: albedo.pixels,
+        relighting: pooled(false),
+        synthesis: pooled(true),
+        runs: figures,
+        rays,
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    // Written last: a failed evaluation leaves an earlier eval/ as it was.
+    let mut files = crate::io::AtomicFiles::new();
+    for (path, img) in &strips {
+        let mut bytes = Vec::new();
+        img.write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| Error::io(path, std::io::Error::other(e)))?;
+        files.write(path, &bytes)?;
+    }
+    files.write(
+        &out_dir.join("eval.json"),
+        serde_json::to_string_pretty(&report)
+            .expect("the report serialises")
+            .as_bytes(),
+    )?;
+    files.write(&out_dir.join("eval.md"), markdown(&report).as_bytes())?;
+    files.commit()?;
+    Ok(report)
+}
+
+/// A strip of 8-bit sRGB images side by side, then |first − second| × 4 (the error of the
+/// second against the first).
+fn strip(images: &[&[[f32; 3]]], w: u32, h: u32) -> image::RgbImage {
+    let n = images.len() as u32 + 1;
+    let mut out = image::RgbImage::new(n * w, h);
+    let byte = |v: f32| (v * 255.0).round().clamp(0.0, 255.0) as u8;
+    let enc: Vec<Vec<[f32; 3]>> = images.iter().map(|i| srgb8(i)).collect();
+    for i in 0..(w * h) as usize {
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        for (j, img) in enc.iter().enumerate() {
+            out.put_pixel(x + j as u32 * w, y, image::Rgb(img[i].map(byte)));
+        }
+        let e = [0, 1, 2].map(|c| byte(4.0 * (enc[1][i][c] - enc[0][i][c]).abs()));
+        out.put_pixel(x + (n - 1) * w, y, image::Rgb(e));
+    }
+    out
+}
+
+/// `eval.md`: Tables 1 and 2 of this dataset.
+pub fn markdown(r: &Report) -> String {
+    let mut s = String::new();
+    let table = |s: &mut String, title: &str, rows: &BTreeMap<String, RowFigures>| {
+        s.push_str(&format!("### {title}\n\n"));
+        s.push_str("| Method | PSNR ↑ | SSIM ↑ | HDR PSNR ↑ | PSNR (rescaled) | SSIM (rescaled) | HDR PSNR (rescaled) |\n");
+        s.push_str("|---|---|---|---|---|---|---|\n");
+        for (key, name) in ROWS {
+            let Some(f) = rows.get(key) else { continue };
+            let (a, b, c) = match f.rescaled {
+                Some(m) => (
+                    format!("{:.2}", m.psnr_srgb_db),
+                    format!("{:.3}", m.ssim_srgb),
+                    format!("{:.2}", m.psnr_hdr_db),
+                ),
+                None => ("–".into(), "–".into(), "–".into()),
+            };
+            s.push_str(&format!(
+                "| {name} | {:.2} | {:.3} | {:.2} | {a} | {b} | {c} |\n",
+                f.raw.psnr_srgb_db, f.raw.ssim_srgb, f.raw.psnr_hdr_db
+            ));
+        }
+        s.push('\n');
+    };
+    s.push_str(&format!(
+        "Evaluation of `{}` on `{}`: {} spp, denoising: {}; median albedo ratio {:.3}, {:.3}, {:.3} ({} pixels). PSNR and SSIM on 8-bit sRGB, HDR PSNR on scene-linear radiance with the reference's peak; means over images.\n\n",
+        r.relightable, r.dataset, r.spp, r.denoise, r.albedo_ratio[0], r.albedo_ratio[1], r.albedo_ratio[2], r.albedo_pixels
+    ));
+    table(
+        &mut s,
+        "Novel-state relighting (Table 1): the test arrangement under environments no training state saw",
+        &r.relighting,
+    );
+    if !r.synthesis.is_empty() {
+        table(
+            &mut s,
+            "Novel-state synthesis (Table 2): the test arrangement under each training state's recovered lighting",
+            &r.synthesis,
+        );
+    }
+    s.push_str("### Per run\n\n| State | Environment | LightFuse | Baked | No re-tracing |\n|---|---|---|---|---|\n");
+    for f in &r.runs {
+        let db = |k: &str| {
+            f.mean.get(k).map_or("–".into(), |m| {
+                format!("{:.2} dB / {:.3}", m.raw.psnr_srgb_db, m.raw.ssim_srgb)
+            })
+        };
+        let env = match &f.training_state {
+            Some(t) => format!("{} (recovered, {t})", f.environment),
+            None => f.environment.clone(),
+        };
+        s.push_str(&format!(
+            "| {} | {env} | {} | {} | {} |\n",
+            f.state,
+            db("lightfuse"),
+            db("baked"),
+            db("no_retracing")
+        ));
+    }
+    s
+}

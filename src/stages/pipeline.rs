@@ -1,0 +1,250 @@
+//! `lightfuse run`: stages 1–3 and the evaluation in order, on one work folder (DESIGN §4).
+//!
+//! A step is skipped when its outputs exist and are newer than its inputs (the dataset's
+//! `dataset.json` and the previous step's output), unless `<work>/run.json` records that another
+//! preset made the folder; otherwise it runs with `resume`, so a killed run continues from the
+//! step's checkpoint. A changed preset (or `--force`) runs every step afresh.
+
+use crate::error::{Error, Result};
+use crate::stages::common::say;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+
+pub struct Options {
+    pub dataset: PathBuf,
+    pub work: PathBuf,
+    /// "fast" or "paper", for every stage.
+    pub preset: String,
+    /// Run every step even when its outputs are up to date.
+    pub force: bool,
+    pub quiet: bool,
+}
+
+/// What a step did.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct StepOutcome {
+    pub step: String,
+    /// "ran" or "skipped (up to date)".
+    pub outcome: String,
+    pub seconds: f64,
+}
+
+/// `<work>/run.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RunRecord {
+    pub format: String,
+    pub preset: String,
+    pub steps: Vec<StepOutcome>,
+}
+
+fn modified(path: &Path) -> Option<SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
+}
+
+/// True when every output exists and is at least as new as every input.
+fn up_to_date(outputs: &[PathBuf], inputs: &[PathBuf]) -> bool {
+    let newest_input = inputs.iter().filter_map(|p| modified(p)).max();
+    outputs.iter().all(|o| match (modified(o), newest_input) {
+        (Some(t), Some(i)) => t >= i,
+        (Some(_), None) => true,
+        (None, _) => false,
+    })
+}
+
+/// Runs stages 1–3 and the evaluation; returns what each step did.
+pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
+    if opts.preset != "fast" && opts.preset != "paper" {
+        return Err(Error::Usage(format!(
+            "--preset: expected \"fast\" or \"paper\", found {:?}",
+            opts.preset
+        )));
+    }
+    let paper = opts.preset == "paper";
+    let dataset = crate::io::dataset::Dataset::read(&opts.dataset)?;
+    crate::eval::relight::check_dataset(&dataset)?;
+    let record_path = opts.work.join("run.json");
+    // Outputs of the single-stage commands (no run.json) count as they are; a recorded other
+    // preset does not.
+    let other_preset = std::fs::read(&record_path)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<RunRecord>(&b).ok())
+        .is_some_and(|r| r.preset != opts.preset);
+    let fresh = opts.force || other_preset;
+    if other_preset {
+        say(
+            opts.quiet,
+            &format!(
+                "{}: another preset made this work folder; every step runs again",
+                record_path.display()
+            ),
+        );
+    }
+    std::fs::create_dir_all(&opts.work).map_err(|e| Error::io(&opts.work, e))?;
+    let w = &opts.work;
+    let ds = dataset.file.clone();
+    let mut steps = Vec::new();
+    let mut step = |name: &str,
+                    outputs: Vec<PathBuf>,
+                    inputs: Vec<PathBuf>,
+                    f: &mut dyn FnMut(bool) -> Result<()>|
+     -> Result<()> {
+        let t = std::time::Instant::now();
+        if !fresh && up_to_date(&outputs, &inputs) {
+            say(
+                opts.quiet,
+                &format!("== {name}: up to date ({}), skipped", outputs[0].display()),
+            );
+            steps.push(StepOutcome {
+                step: name.into(),
+                outcome: "skipped (up to date)".into(),
+                seconds: 0.0,
+            });
+            return Ok(());
+        }
+        say(opts.quiet, &format!("== {name}"));
+        f(!fresh)?;
+        steps.push(StepOutcome {
+            step: name.into(),
+            outcome: "ran".into(),
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        let record = RunRecord {
+            format: "lightfuse-run/1".into(),
+            preset: opts.preset.clone(),
+            steps: steps.clone(),
+        };
+        crate::stages::common::write_checkpoint(&record_path, &record)
+    };
+
+    step(
+        "stage 1: reconstruct",
+        vec![w.join("scene.glb"), w.join("report.json")],
+        vec![ds.clone()],
+        &mut |resume| {
+            use crate::stages::reconstruct::{run, train::Settings};
+            let settings = if paper {
+                Settings::paper()
+            } else {
+                Settings::fast()
+            };
+            run::reconstruct(&run::Options {
+                dataset: ds.clone(),
+                out: w.clone(),
+                settings,
+                oracle_poses: false,
+                resume,
+                quiet: opts.quiet,
+                voxel: 0.01,
+                tau_d: 0.05,
+            })
+            .map(|_| ())
+        },
+    )?;
+    step(
+        "stage 2: refine",
+        vec![w.join("refined.glb"), w.join("refine").join("report.json")],
+        vec![ds.clone(), w.join("scene.glb")],
+        &mut |resume| {
+            use crate::stages::refine::{self, Settings};
+            let settings = if paper {
+                Settings::paper()
+            } else {
+                Settings::fast()
+            };
+            refine::refine(&refine::Options {
+                dataset: ds.clone(),
+                work: w.clone(),
+                scene: None,
+                settings,
+                leaks: Default::default(),
+                resume,
+                quiet: opts.quiet,
+            })
+            .map(|_| ())
+        },
+    )?;
+    step(
+        "stage 3: invert",
+        vec![
+            w.join("relightable.glb"),
+            w.join("invert").join("report.json"),
+        ],
+        vec![ds.clone(), w.join("refined.glb")],
+        &mut |resume| {
+            use crate::stages::invert::{self, Settings};
+            let settings = if paper {
+                Settings::paper()
+            } else {
+                Settings::fast()
+            };
+            invert::invert(&invert::Options {
+                dataset: ds.clone(),
+                work: w.clone(),
+                scene: None,
+                settings,
+                eval_spp: 16,
+                eval_stride: 2,
+                resume,
+                quiet: opts.quiet,
+            })
+            .map(|_| ())
+        },
+    )?;
+    step(
+        "evaluate",
+        vec![w.join("eval").join("eval.json")],
+        vec![ds.clone(), w.join("scene.glb"), w.join("relightable.glb")],
+        &mut |_| {
+            crate::eval::relight::evaluate(&crate::eval::relight::Options {
+                dataset: ds.clone(),
+                work: w.clone(),
+                spp: 32,
+                seed: 0,
+                images: true,
+                quiet: opts.quiet,
+            })
+            .map(|_| ())
+        },
+    )?;
+    Ok(steps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_step_is_up_to_date_only_when_its_outputs_are_newer_than_its_inputs() {
+        let dir = std::env::temp_dir().join(format!("lf-pipeline-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (input, output) = (dir.join("in"), dir.join("out"));
+        std::fs::write(&input, b"1").unwrap();
+        assert!(
+            !up_to_date(std::slice::from_ref(&output), std::slice::from_ref(&input)),
+            "missing output"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        std::fs::write(&output, b"2").unwrap();
+        assert!(up_to_date(
+            std::slice::from_ref(&output),
+            std::slice::from_ref(&input)
+        ));
+        // A missing input (e.g. an optional earlier output) does not make a step stale.
+        assert!(up_to_date(
+            std::slice::from_ref(&output),
+            &[input.clone(), dir.join("none")]
+        ));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        std::fs::write(&input, b"3").unwrap();
+        assert!(
+            !up_to_date(std::slice::from_ref(&output), std::slice::from_ref(&input)),
+            "input changed"
+        );
+        assert!(
+            !up_to_date(&[output, dir.join("none")], &[input]),
+            "one output missing"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
