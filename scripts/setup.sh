@@ -1,13 +1,11 @@
 #!/usr/bin/env bash
-# Installs everything LightFuse needs, idempotently: the release build, the Python venv with
-# pinned bpy (Blender as a module, Cycles on the CPU) and usd-core, and the pinned npm tools
+# Installs everything LightFuse needs, idempotently: the Python venv with pinned bpy (Blender
+# as a module, Cycles on the CPU), usd-core and pyoidn (whose Open Image Denoise library the
+# `denoise` feature links), the release build with that feature, and the pinned npm tools
 # (Khronos glTF-Validator, Babylon.js loaders) that the tests check our files with.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 say() { [ "${QUIET:-0}" = 1 ] || echo "setup: $*" >&2; }
-
-say "building lightfuse (release)"
-cargo build --release --locked --bins ${QUIET:+--quiet}
 
 # Python: one venv, pinned requirements; re-installed only when requirements change.
 PY=${PYTHON:-python3}
@@ -21,6 +19,13 @@ if [ ! -x .venv/bin/python ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; th
   .venv/bin/python -m pip install --quiet --disable-pip-version-check -r "$req"
   echo "$want" > "$stamp"
 fi
+
+# Open Image Denoise from the venv's pyoidn wheel (lib/libOpenImageDenoise.so*): the oidn
+# crate links it from $OIDN_DIR/lib and build.rs embeds that directory as the rpath.
+OIDN_DIR=$(.venv/bin/python -c 'import importlib.util as u, os; print(os.path.join(u.find_spec("pyoidn").submodule_search_locations[0], "oidn"))')
+export OIDN_DIR
+say "building lightfuse (release, --features denoise)"
+cargo build --release --locked --bins --features denoise ${QUIET:+--quiet}
 
 # npm tools, from the lock file.
 lock_want=$(sha256sum tools/package-lock.json | cut -d' ' -f1)

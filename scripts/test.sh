@@ -4,13 +4,17 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 QUIET=1 bash scripts/setup.sh
+# The `denoise` feature links Open Image Denoise from the venv's pyoidn (as scripts/setup.sh).
+OIDN_DIR=$(.venv/bin/python -c 'import importlib.util as u, os; print(os.path.join(u.find_spec("pyoidn").submodule_search_locations[0], "oidn"))')
+export OIDN_DIR
 
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
-echo "== cargo clippy"
+echo "== cargo clippy (with and without --features denoise)"
+cargo clippy --locked --all-targets --features denoise --quiet -- -D warnings
 cargo clippy --locked --all-targets --quiet -- -D warnings
 echo "== cargo test"
-cargo test --locked --quiet
+cargo test --locked --features denoise --quiet
 echo "== pytest"
 LIGHTFUSE_BIN="$PWD/target/release/lightfuse" .venv/bin/python -m pytest -q blender/tests tests/python
 echo "== fuzz (short)"

@@ -35,9 +35,15 @@ def test_run_skips_finished_stages_and_evaluate_writes_both_tables(tiny_dataset,
     p = run("run", ds, "-o", work)
     assert p.returncode == 0 and "evaluate: skipped (up to date)" in p.stderr, p.stderr
 
+    assert "Open Image Denoise" in json.loads((work / "eval" / "eval.json").read_text())["denoise"]
+    # An evaluation made with the other denoising setting is out of date.
+    p = run("run", ds, "-o", work, "--no-denoise")
+    assert p.returncode == 0 and "evaluate: ran" in p.stderr, p.stderr
+    assert json.loads((work / "eval" / "eval.json").read_text())["denoise"] == "none"
+
     report = json.loads(ok("--json", "evaluate", ds, work, "--spp", "2"))
     assert report["format"] == "lightfuse-eval/1" and report["spp"] == 2
-    assert report["denoise"] == "none"
+    assert "Open Image Denoise" in report["denoise"], report["denoise"]
     test = next(s for s in tiny_dataset["json"]["states"] if s["split"] == "test")
     assert len(report["runs"]) == len(test["relight"])
     synthesis = [r for r in report["runs"] if r["training_state"]]

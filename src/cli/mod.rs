@@ -83,6 +83,9 @@ pub struct EvaluateArgs {
     /// Do not write the comparison images.
     #[arg(long)]
     pub no_images: bool,
+    /// Compare the traced rows as rendered, without Open Image Denoise (the paper denoised).
+    #[arg(long)]
+    pub no_denoise: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -98,6 +101,9 @@ pub struct RunArgs {
     /// Run every stage again even when its output is up to date.
     #[arg(long)]
     pub force: bool,
+    /// Evaluate without Open Image Denoise (the paper denoised).
+    #[arg(long)]
+    pub no_denoise: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -279,6 +285,10 @@ pub struct RenderArgs {
     /// Writes R,G,B (over black), A, Z, N; ignores the environment and --spp.
     #[arg(long)]
     pub baked: bool,
+    /// Denoise R, G, B with Open Image Denoise (HDR, albedo and normal guides; needs the
+    /// `denoise` build feature, which `bash scripts/setup.sh` builds).
+    #[arg(long)]
+    pub denoise: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -903,6 +913,7 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         spp: a.spp,
         seed: a.seed,
         images: !a.no_images,
+        denoise: !a.no_denoise,
         quiet: cli.quiet || cli.json,
     })?;
     if cli.json {
@@ -928,6 +939,7 @@ fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
         work: a.out.clone(),
         preset: a.preset.clone(),
         force: a.force,
+        denoise: !a.no_denoise,
         quiet: cli.quiet || cli.json,
     })?;
     let eval_md = a.out.join("eval").join("eval.md");

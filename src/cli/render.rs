@@ -10,6 +10,9 @@
 //!   the AOVs come from the record at the pixel centre;
 //! - `<name>.png`: an 8-bit sRGB preview of R, G, B (clamped to [0, 1], sRGB OETF).
 //!
+//! With `--denoise`, R, G, B are Open Image Denoise's estimate (HDR, guided by the albedo and
+//! normal AOVs, [`crate::shade::denoise::Guides`]); the AOVs are unchanged.
+//!
 //! Frame k of the selection uses the Sobol streams `Sampler::new(y·w + x, seed + k)`.
 
 use super::{Cli, RenderArgs};
@@ -17,8 +20,9 @@ use crate::error::{Error, Result};
 use crate::io::cameras::read_views;
 use crate::io::exr::Channels;
 use crate::scene::{Environment, Scene, State};
+use crate::shade::denoise::{denoise_hdr, Guides};
 use crate::shade::estimator::{Estimator, PixelFilter};
-use crate::shade::render::render_image;
+use crate::shade::render::{environment_image, render_image, Aovs};
 use crate::shade::EnvMap;
 use crate::trace::TraceScene;
 use std::path::{Path, PathBuf};
@@ -37,6 +41,15 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
             "--filter-width: expected a width >= 0 pixels, found {}",
             a.filter_width
         )));
+    }
+    if a.denoise && (a.baked || !crate::shade::denoise::available()) {
+        return Err(Error::Usage(if a.baked {
+            "--denoise: a --baked render is splatted and has no noise to remove".into()
+        } else {
+            "--denoise: this lightfuse was built without the `denoise` feature (Open Image \
+             Denoise); `bash scripts/setup.sh` builds with it"
+                .to_string()
+        }));
     }
     let scene = crate::io::read_scene(&a.scene)?;
     let state = select_state(&scene, a)?;
@@ -76,11 +89,14 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
     for (k, view) in views.iter().enumerate() {
         bar.set_message(view.name.clone());
         let seed = a.seed.wrapping_add(k as u32);
-        let (image, view_rays) =
+        let (mut image, view_rays) =
             render_image(&estimator, &filter, &view.camera, a.spp, seed, &|n| {
                 bar.inc(n)
             });
         rays += view_rays;
+        if a.denoise {
+            denoise(&mut image, &map, &view.camera)?;
+        }
         files.extend(write_view(&image, &a.out, &view.name)?);
     }
     bar.finish_and_clear();
@@ -90,7 +106,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
             "{}",
             serde_json::json!({
                 "files": files, "frames": views.len(), "seconds": seconds, "rays": rays,
-                "spp": a.spp, "seed": a.seed, "state": state.name, "epsilon": eps,
+                "spp": a.spp, "denoise": a.denoise, "seed": a.seed, "state": state.name, "epsilon": eps,
                 "environment": env_source, "environment_rotation_deg": rotation,
             })
         );
@@ -102,6 +118,36 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
             a.out.display(),
             rays as f64 / seconds.max(1e-9) / 1e6
         );
+    }
+    Ok(())
+}
+
+/// Replaces `R, G, B` by Open Image Denoise's estimate, guided by the image's own pixel-centre
+/// AOVs ([`Guides::new`], as `lightfuse evaluate` denoises).
+fn denoise(image: &mut Channels, env: &EnvMap, camera: &crate::scene::Camera) -> Result<()> {
+    let plane = |name: &str| image.get(name).expect("render_image writes every channel");
+    let zip3 = |a: &[f32], b: &[f32], c: &[f32]| -> Vec<[f32; 3]> {
+        (0..a.len()).map(|i| [a[i], b[i], c[i]]).collect()
+    };
+    let aovs = Aovs {
+        alpha: plane("A").to_vec(),
+        depth: plane("Z").to_vec(),
+        normal: zip3(plane("N.X"), plane("N.Y"), plane("N.Z")),
+        albedo: zip3(plane("albedo.R"), plane("albedo.G"), plane("albedo.B")),
+    };
+    let color = zip3(plane("R"), plane("G"), plane("B"));
+    let g = Guides::new(&aovs, &environment_image(env, camera), &[1.0; 3]);
+    let out = denoise_hdr(&color, &g.albedo, &g.normal, image.width, image.height)?;
+    for (name, values) in &mut image.channels {
+        let c = match name.as_str() {
+            "R" => 0,
+            "G" => 1,
+            "B" => 2,
+            _ => continue,
+        };
+        for (v, o) in values.iter_mut().zip(&out) {
+            *v = o[c];
+        }
     }
     Ok(())
 }

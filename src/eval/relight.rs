@@ -28,20 +28,25 @@
 //! the same paths re-evaluated ([`Primaries::shade`]). Baked has no base colour to rescale.
 //! A row's figure is the mean over its images.
 //!
-//! Denoising: not yet. The paper's evaluation denoised its 32-spp renders (OptiX's HDR
-//! denoiser with albedo and normal guides); these images are compared as rendered, so the
-//! traced rows carry their Monte Carlo noise (the report's `denoise` says "none").
+//! Denoising ([`Options::denoise`], on by default): the paper's evaluation denoised its 32-spp
+//! renders with OptiX's HDR denoiser and albedo + normal guides; we use Intel Open Image
+//! Denoise's `RT` filter in HDR mode with the same two guides ([`crate::shade::denoise`]; OptiX
+//! needs an NVIDIA GPU, OIDN is its CPU counterpart and Blender's own). Each traced image is
+//! denoised on its own (both rows, raw and rescaled), with guides from the view's pixel-centre
+//! records ([`Guides::new`]: base colour times the image's rescale over the environment by
+//! coverage, and the normal). Baked is splatted, noise-free, and is not
+//! denoised. `--no-denoise` compares the images as rendered (the report's `denoise` says which).
 
 use crate::error::{Error, Result};
 use crate::eval::lighting::compare_albedo;
 use crate::eval::metrics::{psnr_hdr, psnr_srgb8, srgb8, ssim_srgb8};
 use crate::io::dataset::{Dataset, Frame};
 use crate::scene::{Environment, Layout, Scene, State};
+use crate::shade::denoise::Guides;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
-use crate::shade::render::Primaries;
+use crate::shade::render::{environment_image, Aovs, Primaries};
 use crate::shade::EnvMap;
 use crate::trace::TraceScene;
-use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -65,8 +70,13 @@ pub struct Options {
     pub seed: u32,
     /// Write a comparison strip per (run, view) into `<work>/eval/images/`.
     pub images: bool,
+    /// Denoise the traced rows with Open Image Denoise (needs the `denoise` build feature).
+    pub denoise: bool,
     pub quiet: bool,
 }
+
+/// What [`evaluate`] records in the report's `denoise` when it denoises.
+pub const DENOISER: &str = "Open Image Denoise 2.5 RT filter (HDR; albedo and normal guides)";
 
 /// One image's figures.
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
@@ -154,7 +164,7 @@ pub struct Report {
     pub baked: String,
     pub spp: u32,
     pub seed: u32,
-    /// What denoised the traced rows: "none" (not implemented yet).
+    /// What denoised the traced rows: [`DENOISER`], or "none".
     pub denoise: String,
     /// Per-channel median of true / recovered base colour over the test views' surface pixels.
     pub albedo_ratio: [f64; 3],
@@ -272,17 +282,6 @@ fn run_environment(
     ))
 }
 
-/// The environment along each pixel centre's camera ray.
-fn background(env: &EnvMap, camera: &crate::scene::Camera) -> Vec<[f32; 3]> {
-    (0..camera.h)
-        .flat_map(|y| (0..camera.w).map(move |x| (x, y)))
-        .map(|(x, y)| {
-            let (_, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
-            env.eval(Vec3::from_array(d))
-        })
-        .collect()
-}
-
 /// Runs the evaluation and writes `<work>/eval/{eval.json, eval.md}` (and the images).
 pub fn evaluate(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
@@ -292,6 +291,14 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             crate::shade::sobol::MAX_SAMPLES,
             opts.spp
         )));
+    }
+    if opts.denoise && !crate::shade::denoise::available() {
+        return Err(Error::Usage(
+            "evaluate denoises the traced rows like the paper, but this lightfuse was built \
+             without the `denoise` feature (Open Image Denoise): run `bash scripts/setup.sh`, \
+             which builds with it, or pass --no-denoise to compare the images as rendered"
+                .into(),
+        ));
     }
     let d = Dataset::read(&opts.dataset)?;
     check_dataset(&d)?;
@@ -386,30 +393,39 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             .unwrap_or(0);
         for v in 0..views {
             // One primary trace per distinct camera of this view index.
-            let mut primaries: Option<Primaries> = None;
+            let mut primaries: Option<(Primaries, Aovs)> = None;
             for &r in &my_runs {
                 let Some(frame) = runs[r].frames.get(v) else {
                     continue;
                 };
                 let cam = &frame.camera;
-                if primaries.as_ref().map(|p| &p.camera) != Some(cam) {
+                if primaries.as_ref().map(|(p, _)| &p.camera) != Some(cam) {
                     let p = Primaries::trace(&placed, &filter, cam, opts.spp, opts.seed);
                     rays += p.rays;
-                    primaries = Some(p);
+                    let aovs = p.aovs();
+                    primaries = Some((p, aovs));
                 }
-                let p = primaries.as_ref().expect("traced above");
+                let (p, aovs) = primaries.as_ref().expect("traced above");
                 let (w, h) = (cam.w, cam.h);
                 let truth = d.frame_planes(&frame.file_path, &["R", "G", "B"], cam)?;
                 let truth: Vec<[f32; 3]> = (0..truth[0].len())
                     .map(|i| [truth[0][i], truth[1][i], truth[2][i]])
                     .collect();
                 let env = &envs[r].0;
-                let bg = background(env, cam);
+                let bg = environment_image(env, cam);
                 let mut traced = Vec::new();
                 for strategy in [Strategy::Full, Strategy::Unshadowed] {
                     let est = Estimator::new(&placed, env, eps).with_strategy(strategy);
-                    let (images, n) = p.shade(&est, &scales);
+                    let (mut images, n) = p.shade(&est, &scales);
                     rays += n;
+                    if opts.denoise {
+                        for (img, s) in images.iter_mut().zip(&scales) {
+                            let g = Guides::new(aovs, &bg, s);
+                            *img = crate::shade::denoise::denoise_hdr(
+                                img, &g.albedo, &g.normal, w as usize, h as usize,
+                            )?;
+                        }
+                    }
                     traced.push(images);
                 }
                 let splat = crate::splat::forward(&placements, cam).image;
@@ -484,7 +500,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         baked: baked_file.display().to_string(),
         spp: opts.spp,
         seed: opts.seed,
-        denoise: "none".into(),
+        denoise: if opts.denoise { DENOISER } else { "none" }.into(),
         albedo_ratio: albedo.ratio,
         albedo_pixels: albedo.pixels,
         relighting: pooled(false),

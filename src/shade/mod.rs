@@ -14,6 +14,7 @@
 //! integrate to one, match histograms of the samples, and agree with the samples' weights.
 
 pub mod brdf;
+pub mod denoise;
 pub mod envmap;
 pub mod estimator;
 pub mod render;

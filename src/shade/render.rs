@@ -97,6 +97,18 @@ pub fn render_image(
     )
 }
 
+/// The environment seen along each pixel centre's camera ray of `camera` (row-major): what a
+/// pixel shows where nothing covers it.
+pub fn environment_image(env: &crate::shade::EnvMap, camera: &Camera) -> Vec<[f32; 3]> {
+    (0..camera.h)
+        .flat_map(|y| (0..camera.w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let (_, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+            env.eval(Vec3::from_array(d))
+        })
+        .collect()
+}
+
 /// Every path sample's camera ray and primary record of one camera, traced once. Geometry and
 /// placement alone decide them (the camera ray's filter jitter comes from the pixel's Sobol
 /// stream, the record from compositing), so renders of the same view under several

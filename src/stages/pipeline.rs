@@ -18,6 +18,9 @@ pub struct Options {
     pub preset: String,
     /// Run every step even when its outputs are up to date.
     pub force: bool,
+    /// Denoise the evaluation's traced rows (see [`crate::eval::relight::Options::denoise`]);
+    /// an `eval.json` made with the other setting is out of date.
+    pub denoise: bool,
     pub quiet: bool,
 }
 
@@ -52,6 +55,19 @@ fn up_to_date(outputs: &[PathBuf], inputs: &[PathBuf]) -> bool {
     })
 }
 
+/// False when an evaluation output was made with another denoising setting than `denoise`.
+fn eval_settings_match(eval_json: &Path, denoise: bool) -> bool {
+    std::fs::read(eval_json)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .and_then(|v| {
+            v.get("denoise")
+                .and_then(|d| d.as_str())
+                .map(|d| d != "none")
+        })
+        .is_some_and(|denoised| denoised == denoise)
+}
+
 /// Runs stages 1–3 and the evaluation; returns what each step did.
 pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     if opts.preset != "fast" && opts.preset != "paper" {
@@ -61,6 +77,15 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
         )));
     }
     let paper = opts.preset == "paper";
+    if opts.denoise && !crate::shade::denoise::available() {
+        // Checked here too, so that the run fails before the stages rather than after them.
+        return Err(Error::Usage(
+            "lightfuse run denoises the evaluation like the paper, but this lightfuse was built \
+             without the `denoise` feature (Open Image Denoise): run `bash scripts/setup.sh`, \
+             which builds with it, or pass --no-denoise"
+                .into(),
+        ));
+    }
     let dataset = crate::io::dataset::Dataset::read(&opts.dataset)?;
     crate::eval::relight::check_dataset(&dataset)?;
     let record_path = opts.work.join("run.json");
@@ -83,6 +108,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     std::fs::create_dir_all(&opts.work).map_err(|e| Error::io(&opts.work, e))?;
     let w = &opts.work;
     let ds = dataset.file.clone();
+    let settings_match =
+        |name: &str, output: &Path| name != "evaluate" || eval_settings_match(output, opts.denoise);
     let mut steps = Vec::new();
     let mut step = |name: &str,
                     outputs: Vec<PathBuf>,
@@ -90,7 +117,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                     f: &mut dyn FnMut(bool) -> Result<()>|
      -> Result<()> {
         let t = std::time::Instant::now();
-        if !fresh && up_to_date(&outputs, &inputs) {
+        if !fresh && up_to_date(&outputs, &inputs) && settings_match(name, &outputs[0]) {
             say(
                 opts.quiet,
                 &format!("== {name}: up to date ({}), skipped", outputs[0].display()),
@@ -202,6 +229,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                 spp: 32,
                 seed: 0,
                 images: true,
+                denoise: opts.denoise,
                 quiet: opts.quiet,
             })
             .map(|_| ())
