@@ -7,6 +7,13 @@ QUIET=1 bash scripts/setup.sh
 # The `denoise` feature links Open Image Denoise from the venv's pyoidn (as scripts/setup.sh).
 OIDN_DIR=$(.venv/bin/python -c 'import importlib.util as u, os; print(os.path.join(u.find_spec("pyoidn").submodule_search_locations[0], "oidn"))')
 export OIDN_DIR
+# Chromium and its driver (Debian packages) for the browser test of the evaluation report.
+if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then
+  echo "== installing chromium and chromium-driver (Debian) for the report's browser test"
+  SUDO=; [ "$(id -u)" = 0 ] || SUDO=sudo
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends chromium chromium-driver >/dev/null
+fi
 
 echo "== cargo fmt --check"
 cargo fmt --all -- --check

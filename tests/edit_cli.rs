@@ -1,5 +1,6 @@
 //! `lightfuse edit`: a new named state (layout, materials, environment) written as a scene that
-//! reads back (.glb and .usda); bad input is one clear error, exit 2, and nothing written.
+//! reads back (.glb and .usda) and survives .glb -> .usda -> .glb bit for bit; bad input is one
+//! clear error, exit 2, and nothing written.
 
 use lightfuse::io::layout::write_layout;
 use lightfuse::scene::synthetic::random_scene;
@@ -75,6 +76,28 @@ fn edit_writes_a_new_state_and_refuses_bad_input() {
             scene.components[1].surfels.base_color
         );
     }
+
+    // The edit survives interchange bit for bit: edited .glb -> .usda -> .glb gives the same
+    // scene (every f32 the same bits, the state, materials and environment) and the same bytes.
+    let edited = d.join("out.glb");
+    let (usda, back) = (d.join("edited.usda"), d.join("back.glb"));
+    for (from, to) in [(&edited, &usda), (&usda, &back)] {
+        let r = lightfuse(&[
+            "--quiet".as_ref(),
+            "convert".as_ref(),
+            from.as_os_str(),
+            to.as_os_str(),
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    assert_eq!(
+        lightfuse::io::read_scene(&back).unwrap(),
+        lightfuse::io::read_scene(&edited).unwrap()
+    );
+    assert!(
+        std::fs::read(&back).unwrap() == std::fs::read(&edited).unwrap(),
+        "edited .glb -> .usda -> .glb changed the file's bytes"
+    );
 
     let o = d.join("bad.glb");
     for (args, what) in [

@@ -1,13 +1,15 @@
 """`lightfuse evaluate` and `lightfuse run` end to end on the tiny generated dataset: the test
 state's arrangement under each unseen environment (Table 1) and under each training state's
 recovered lighting (Table 2), three rows (LightFuse, Baked, No re-tracing) against the Cycles
-frames, eval.json / eval.md / a comparison strip per view; `run` skips the stages whose outputs
+frames, eval.json / eval.md / a comparison strip per view / report.html (opened in headless
+Chromium); `run` skips the stages whose outputs
 are up to date; bad input is one clear error with exit code 2 and nothing written. (The figures
 are measured on the demo and reported in the README; `tests/evaluate.rs` checks the pieces.)"""
 import json
 import math
 import shutil
 
+from browser import open_page
 from test_reconstruct import ok, run, stages
 
 ROWS = {"lightfuse", "baked", "no_retracing"}
@@ -36,6 +38,7 @@ def test_run_skips_finished_stages_and_evaluate_writes_both_tables(tiny_dataset,
     assert p.returncode == 0 and "evaluate: skipped (up to date)" in p.stderr, p.stderr
 
     assert "Open Image Denoise" in json.loads((work / "eval" / "eval.json").read_text())["denoise"]
+    check_report_in_browser(work / "eval")
     # An evaluation made with the other denoising setting is out of date.
     p = run("run", ds, "-o", work, "--no-denoise")
     assert p.returncode == 0 and "evaluate: ran" in p.stderr, p.stderr
@@ -63,6 +66,38 @@ def test_run_skips_finished_stages_and_evaluate_writes_both_tables(tiny_dataset,
                     assert math.isfinite(m["psnr_srgb_db"]) and -1 <= m["ssim_srgb"] <= 1, m
     md = (work / "eval" / "eval.md").read_text()
     assert "Table 1" in md and "Table 2" in md and "No re-tracing" in md
+
+
+def check_report_in_browser(eval_dir):
+    """report.html in headless Chromium: the tables, every image (view strips, environments,
+    materials) loaded, the loss curves drawn, and a screenshot that is not blank; then with one
+    image removed, the browser reports exactly that one missing (so the check can fail)."""
+    report = json.loads((eval_dir / "eval.json").read_text())
+    strips = [v["image"] for r in report["runs"] for v in r["views"]]
+    page = open_page(eval_dir / "report.html")
+    assert page.title.startswith("LightFuse evaluation"), page.title
+    assert page.tables >= 2, page.tables  # Tables 1 and 2
+    srcs = [i[0] for i in page.images]
+    assert set(strips) <= set(srcs), (strips, srcs)
+    assert any(s.startswith("environments/") and s.endswith("-recovered.png") for s in srcs), srcs
+    assert any(s.startswith("environments/") and s.endswith("-truth.png") for s in srcs), srcs
+    for m in ("base_color", "roughness", "metallic"):
+        assert any(s.startswith("materials/") and s.endswith(f"-{m}.png") for s in srcs), srcs
+    broken = [i for i in page.images if not i[1]]
+    assert not broken, broken
+    assert page.svgs >= 1, "no loss curve drawn"
+    shot = page.screenshot.astype(float)
+    ink = (shot.min(axis=2) < 200).mean()  # share of pixels that are not (near) white
+    assert shot.std() > 20 and ink > 0.05, (shot.std(), ink)
+
+    gone = eval_dir / strips[0]
+    kept = gone.read_bytes()
+    gone.unlink()
+    try:
+        broken = [i[0] for i in open_page(eval_dir / "report.html").images if not i[1]]
+    finally:
+        gone.write_bytes(kept)
+    assert broken == [strips[0]], broken
 
 
 def test_evaluate_bad_input_is_one_clear_error_and_writes_nothing(tiny_dataset, tmp_path):

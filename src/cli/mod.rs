@@ -61,7 +61,8 @@ pub enum Command {
     Edit(EditArgs),
     /// Novel-state relighting and synthesis (the paper's Tables 1 and 2): every test state's
     /// arrangement under its environments, LightFuse against Baked and No re-tracing, compared
-    /// with the dataset's Cycles frames; writes <work>/eval/{eval.json, eval.md, images/}.
+    /// with the dataset's Cycles frames; writes <work>/eval/{eval.json, eval.md, report.html}
+    /// and the images the report shows.
     Evaluate(EvaluateArgs),
     /// Stages 1-3 and the evaluation in order; a stage whose output is newer than its inputs
     /// is skipped, a killed run resumes from the stage's checkpoint.
@@ -923,8 +924,9 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         );
     } else if !cli.quiet {
         eprintln!(
-            "wrote {} in {:.0} s\n",
+            "wrote {} and {} in {:.0} s\n",
             a.work.join("eval").join("eval.md").display(),
+            a.work.join("eval").join("report.html").display(),
             report.seconds
         );
         println!("{}", relight::markdown(&report));
@@ -954,6 +956,10 @@ fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
         }
         let table = std::fs::read_to_string(&eval_md).map_err(|e| Error::io(&eval_md, e))?;
         println!("{table}");
+        eprintln!(
+            "the report: {}",
+            a.out.join("eval").join("report.html").display()
+        );
     }
     Ok(())
 }

@@ -11,7 +11,7 @@
 //! - `<name>.png`: an 8-bit sRGB preview of R, G, B (clamped to [0, 1], sRGB OETF).
 //!
 //! With `--denoise`, R, G, B are Open Image Denoise's estimate (HDR, guided by the albedo and
-//! normal AOVs, [`crate::shade::denoise::Guides`]); the AOVs are unchanged.
+//! normal AOVs, [`crate::shade::denoise::denoise_render`]); the AOVs are unchanged.
 //!
 //! Frame k of the selection uses the Sobol streams `Sampler::new(y·w + x, seed + k)`.
 
@@ -20,7 +20,7 @@ use crate::error::{Error, Result};
 use crate::io::cameras::read_views;
 use crate::io::exr::Channels;
 use crate::scene::{Environment, Scene, State};
-use crate::shade::denoise::{denoise_hdr, Guides};
+use crate::shade::denoise::denoise_render;
 use crate::shade::estimator::{Estimator, PixelFilter};
 use crate::shade::render::{environment_image, render_image, Aovs};
 use crate::shade::EnvMap;
@@ -123,7 +123,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
 }
 
 /// Replaces `R, G, B` by Open Image Denoise's estimate, guided by the image's own pixel-centre
-/// AOVs ([`Guides::new`], as `lightfuse evaluate` denoises).
+/// AOVs ([`denoise_render`], as `lightfuse evaluate` denoises).
 fn denoise(image: &mut Channels, env: &EnvMap, camera: &crate::scene::Camera) -> Result<()> {
     let plane = |name: &str| image.get(name).expect("render_image writes every channel");
     let zip3 = |a: &[f32], b: &[f32], c: &[f32]| -> Vec<[f32; 3]> {
@@ -134,10 +134,13 @@ fn denoise(image: &mut Channels, env: &EnvMap, camera: &crate::scene::Camera) ->
         depth: plane("Z").to_vec(),
         normal: zip3(plane("N.X"), plane("N.Y"), plane("N.Z")),
         albedo: zip3(plane("albedo.R"), plane("albedo.G"), plane("albedo.B")),
+        // Not guides; render_image does not write them.
+        metallic: Vec::new(),
+        roughness: Vec::new(),
     };
     let color = zip3(plane("R"), plane("G"), plane("B"));
-    let g = Guides::new(&aovs, &environment_image(env, camera), &[1.0; 3]);
-    let out = denoise_hdr(&color, &g.albedo, &g.normal, image.width, image.height)?;
+    let bg = environment_image(env, camera);
+    let out = denoise_render(&color, &aovs, &bg, &[1.0; 3], image.width, image.height)?;
     for (name, values) in &mut image.channels {
         let c = match name.as_str() {
             "R" => 0,

@@ -1,7 +1,8 @@
 //! Evaluation against ground truth: image and depth metrics, symmetry-aware object pose error,
-//! stage 3's lighting and material figures.
+//! stage 3's lighting and material figures; `lightfuse evaluate` and its report page.
 
 pub mod geometry;
+pub mod html;
 pub mod lighting;
 pub mod metrics;
 pub mod pose;

@@ -33,16 +33,16 @@
 //! Denoise's `RT` filter in HDR mode with the same two guides ([`crate::shade::denoise`]; OptiX
 //! needs an NVIDIA GPU, OIDN is its CPU counterpart and Blender's own). Each traced image is
 //! denoised on its own (both rows, raw and rescaled), with guides from the view's pixel-centre
-//! records ([`Guides::new`]: base colour times the image's rescale over the environment by
-//! coverage, and the normal). Baked is splatted, noise-free, and is not
+//! records, pixels that saw only the environment kept as rendered ([`denoise_render`]). Baked is splatted, noise-free, and is not
 //! denoised. `--no-denoise` compares the images as rendered (the report's `denoise` says which).
 
 use crate::error::{Error, Result};
+use crate::eval::html;
 use crate::eval::lighting::compare_albedo;
 use crate::eval::metrics::{psnr_hdr, psnr_srgb8, srgb8, ssim_srgb8};
 use crate::io::dataset::{Dataset, Frame};
 use crate::scene::{Environment, Layout, Scene, State};
-use crate::shade::denoise::Guides;
+use crate::shade::denoise::denoise_render;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
 use crate::shade::render::{environment_image, Aovs, Primaries};
 use crate::shade::EnvMap;
@@ -282,7 +282,8 @@ fn run_environment(
     ))
 }
 
-/// Runs the evaluation and writes `<work>/eval/{eval.json, eval.md}` (and the images).
+/// Runs the evaluation and writes `<work>/eval/{eval.json, eval.md, report.html}` (and the
+/// images: [`crate::eval::html`]).
 pub fn evaluate(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
     if opts.spp == 0 || opts.spp > crate::shade::sobol::MAX_SAMPLES {
@@ -380,7 +381,9 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             mean: BTreeMap::new(),
         })
         .collect();
+    // PNGs beside the report, written with it at the end.
     let mut strips: Vec<(PathBuf, image::RgbImage)> = Vec::new();
+    let mut assets = html::Assets::default();
     for (si, &k) in test_states.iter().enumerate() {
         let placed = trace.place_state(&relit_states[si]);
         let eps = self_hit_epsilon(&relit, &relit_states[si]);
@@ -420,13 +423,20 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                     rays += n;
                     if opts.denoise {
                         for (img, s) in images.iter_mut().zip(&scales) {
-                            let g = Guides::new(aovs, &bg, s);
-                            *img = crate::shade::denoise::denoise_hdr(
-                                img, &g.albedo, &g.normal, w as usize, h as usize,
-                            )?;
+                            *img = denoise_render(img, aovs, &bg, s, w as usize, h as usize)?;
                         }
                     }
                     traced.push(images);
+                }
+                if opts.images && v == 0 && r == my_runs[0] {
+                    assets.materials.push(material_view(
+                        &d,
+                        k,
+                        frame,
+                        aovs,
+                        &out_dir,
+                        &mut strips,
+                    )?);
                 }
                 let splat = crate::splat::forward(&placements, cam).image;
                 let baked_img: Vec<[f32; 3]> = (0..splat.color.len())
@@ -493,6 +503,23 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             .collect();
         mean_rows(&rows)
     };
+    if opts.images {
+        assets.environments = environment_pairs(&d, &relit, &out_dir, &mut strips)?;
+    }
+    assets.curves = [
+        (
+            "Stage 1: reconstruction (eq. reconstruction-objective)",
+            "log.jsonl",
+        ),
+        (
+            "Stage 2: refinement for ray tracing (eq. geometry-objective)",
+            "refine/log.jsonl",
+        ),
+        ("Stage 3: inverse rendering", "invert/log.jsonl"),
+    ]
+    .iter()
+    .filter_map(|(title, rel)| html::read_curve(title, &opts.work.join(rel)))
+    .collect();
     let report = Report {
         format: FORMAT.into(),
         dataset: d.file.display().to_string(),
@@ -527,8 +554,115 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             .as_bytes(),
     )?;
     files.write(&out_dir.join("eval.md"), markdown(&report).as_bytes())?;
+    files.write(
+        &out_dir.join("report.html"),
+        html::page(&report, &assets).as_bytes(),
+    )?;
     files.commit()?;
     Ok(report)
+}
+
+/// The report's material images of one view: base colour (and the dataset's albedo pass),
+/// roughness, metallic from the view's pixel-centre records.
+fn material_view(
+    d: &Dataset,
+    k: usize,
+    frame: &Frame,
+    aovs: &Aovs,
+    out_dir: &Path,
+    pngs: &mut Vec<(PathBuf, image::RgbImage)>,
+) -> Result<html::MaterialView> {
+    let (w, h) = (frame.camera.w, frame.camera.h);
+    let state = &d.states[k].name;
+    let stem = Path::new(&frame.file_path)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut figures = Vec::new();
+    let mut add = |name: &str, caption: &str, img: image::RgbImage| {
+        let rel = format!("materials/{state}/{stem}-{name}.png");
+        pngs.push((out_dir.join(&rel), img));
+        figures.push(html::Figure {
+            file: rel,
+            caption: caption.into(),
+        });
+    };
+    add(
+        "base_color",
+        "base colour (recovered)",
+        html::srgb_image(&aovs.albedo, w, h),
+    );
+    if let Some(rel) = &frame.albedo_file_path {
+        let t = d.frame_planes(rel, &["R", "G", "B"], &frame.camera)?;
+        let t: Vec<[f32; 3]> = (0..t[0].len())
+            .map(|i| [t[0][i], t[1][i], t[2][i]])
+            .collect();
+        add(
+            "base_color_truth",
+            "albedo (Cycles' pass)",
+            html::srgb_image(&t, w, h),
+        );
+    }
+    add(
+        "roughness",
+        "roughness",
+        html::grey_image(&aovs.roughness, w, h),
+    );
+    add(
+        "metallic",
+        "metallic",
+        html::grey_image(&aovs.metallic, w, h),
+    );
+    Ok(html::MaterialView {
+        state: state.clone(),
+        frame: frame.file_path.clone(),
+        figures,
+    })
+}
+
+/// The report's environment images: each training state's recovered map beside the dataset's.
+fn environment_pairs(
+    d: &Dataset,
+    relit: &Scene,
+    out_dir: &Path,
+    pngs: &mut Vec<(PathBuf, image::RgbImage)>,
+) -> Result<Vec<html::EnvironmentPair>> {
+    let mut pairs = Vec::new();
+    for (k, st) in d.states.iter().enumerate() {
+        if st.split != "train" {
+            continue;
+        }
+        let Some(env) = relit
+            .state_index(&st.name)
+            .and_then(|i| relit.states[i].environment)
+            .map(|r| &relit.environments[r.index])
+        else {
+            continue;
+        };
+        let rel = format!("environments/{}-recovered.png", st.name);
+        pngs.push((out_dir.join(&rel), html::tonemap_latlong(env)));
+        let recovered = html::Figure {
+            file: rel,
+            caption: format!("recovered ({}×{})", env.width, env.height),
+        };
+        let truth = match d.environment(k)? {
+            Some(t) => {
+                let rel = format!("environments/{}-truth.png", st.name);
+                pngs.push((out_dir.join(&rel), html::tonemap_latlong(&t)));
+                Some(html::Figure {
+                    file: rel,
+                    caption: format!("truth ({}×{})", t.width, t.height),
+                })
+            }
+            None => None,
+        };
+        pairs.push(html::EnvironmentPair {
+            state: st.name.clone(),
+            recovered,
+            truth,
+        });
+    }
+    Ok(pairs)
 }
 
 /// A strip of 8-bit sRGB images side by side, then |first − second| × 4 (the error of the

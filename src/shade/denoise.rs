@@ -78,6 +78,40 @@ impl Guides {
     }
 }
 
+/// Denoises an image rendered from the records `aovs` over `background` (the environment along
+/// each pixel centre's ray, [`crate::shade::render::environment_image`]), with base colours
+/// scaled by `base_color_scale` as it was rendered: [`denoise_hdr`] with [`Guides::new`], then
+/// every pixel none of whose samples hit a surface (mean coverage 0) gets its rendered value
+/// back. Those pixels are the environment seen through the pixel filter, nearly free of noise;
+/// OIDN, which has no guide for the environment's detail, only softens it (measured on a
+/// blocky random environment: background MSE against 256 spp 5.5x *higher* after OIDN, while
+/// covered pixels gain 11x). OIDN still sees the whole image, so silhouettes keep their context.
+pub fn denoise_render(
+    color: &[[f32; 3]],
+    aovs: &Aovs,
+    background: &[[f32; 3]],
+    base_color_scale: &[f32; 3],
+    width: usize,
+    height: usize,
+) -> Result<Vec<[f32; 3]>> {
+    if aovs.alpha.len() != color.len() || background.len() != color.len() {
+        return Err(Error::Usage(format!(
+            "denoise: {} pixels of colour, {} of coverage, {} of background",
+            color.len(),
+            aovs.alpha.len(),
+            background.len()
+        )));
+    }
+    let g = Guides::new(aovs, background, base_color_scale);
+    let mut out = denoise_hdr(color, &g.albedo, &g.normal, width, height)?;
+    for ((o, c), &a) in out.iter_mut().zip(color).zip(&aovs.alpha) {
+        if a <= 0.0 {
+            *o = *c;
+        }
+    }
+    Ok(out)
+}
+
 /// True when this build has the `denoise` feature (Open Image Denoise linked in), so
 /// [`denoise_hdr`] can work.
 pub fn available() -> bool {

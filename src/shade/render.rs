@@ -141,6 +141,8 @@ pub struct Aovs {
     pub normal: Vec<[f32; 3]>,
     /// Base colour.
     pub albedo: Vec<[f32; 3]>,
+    pub metallic: Vec<f32>,
+    pub roughness: Vec<f32>,
 }
 
 impl Primaries {
@@ -203,6 +205,8 @@ impl Primaries {
             depth: vec![0.0; n],
             normal: vec![[0.0; 3]; n],
             albedo: vec![[0.0; 3]; n],
+            metallic: vec![0.0; n],
+            roughness: vec![0.0; n],
         };
         for (p, rec) in self.centre.iter().enumerate() {
             let s = &self.samples[p * spp..(p + 1) * spp];
@@ -213,6 +217,8 @@ impl Primaries {
                 a.depth[p] = rec.mean_depth() * Vec3::from_array(d).dot(fwd);
                 a.normal[p] = rec.unit_normal();
                 a.albedo[p] = rec.mean_base_color();
+                a.metallic[p] = rec.mean_metallic();
+                a.roughness[p] = rec.mean_roughness();
             }
         }
         a
