@@ -100,7 +100,15 @@ fn edit_writes_a_new_state_and_refuses_bad_input() {
     );
 
     let o = d.join("bad.glb");
+    let not_latlong = d.join("not_latlong.exr");
+    lightfuse::io::exr::write_environment(
+        &Environment::new("e", 30, 20, vec![[1.0; 3]; 600]),
+        &not_latlong,
+    )
+    .unwrap();
     for (args, what) in [
+        (vec!["--env", not_latlong.to_str().unwrap()], "2 x height"),
+        (vec!["--material", "object1:roughness=-0.1"], "[0, 1]"),
         (vec!["--material", "object9:metallic=0.5"], "object9"),
         (vec!["--material", "object1:metallic=1.5"], "[0, 1]"),
         (vec!["--name", "state0"], "state0"),
