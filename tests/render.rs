@@ -246,10 +246,15 @@ fn lightfuse(args: &[&str]) -> (i32, String) {
 }
 
 fn cameras_json(path: &Path, fl: f32) {
-    let c = camera(Vec3::new(0.0, 0.3, 3.0), 16, 16, fl);
+    cameras_json_sized(path, 16, 16, fl);
+}
+
+/// One camera at (0, 0.3, 3) looking down −Z, `w`×`h`, written as cameras.json.
+fn cameras_json_sized(path: &Path, w: u32, h: u32, fl: f32) {
+    let c = camera(Vec3::new(0.0, 0.3, 3.0), w, h, fl);
     let v = serde_json::json!({"frames": [
         {"file_path": "views/rgb/000.exr", "transform_matrix": c.transform_matrix,
-         "fl_x": fl, "fl_y": fl, "cx": 8.0, "cy": 8.0, "w": 16, "h": 16}]});
+         "fl_x": fl, "fl_y": fl, "cx": c.cx, "cy": c.cy, "w": w, "h": h}]});
     std::fs::write(path, v.to_string()).unwrap();
 }
 
@@ -429,8 +434,8 @@ fn cli_render_bad_input_exits_2_naming_the_file() {
 /// `render --denoise`: with the `denoise` feature, R, G, B become Open Image Denoise's estimate
 /// where a surface was hit (against a 256-spp render, 64x48: MSE over covered pixels measured
 /// 0.0188 -> 0.0016, 11.5x lower; required 2x) and stay as rendered where only the environment
-/// was seen; the AOVs stay as rendered; without the feature, and with `--baked` (nothing to denoise), it
-/// is one clear error, exit 2.
+/// was seen; the AOVs stay as rendered; without the feature, and with `--baked` (nothing to
+/// denoise), it is one clear error, exit 2.
 #[test]
 fn cli_render_denoise() {
     let dir = tempfile::tempdir().unwrap();
@@ -438,11 +443,7 @@ fn cli_render_denoise() {
     write_lit_scene(&scene, true);
     // 64x48: OIDN's U-Net needs more context than the 16x16 of the other CLI tests.
     let cams = dir.path().join("cameras.json");
-    let c = camera(Vec3::new(0.0, 0.3, 3.0), 64, 48, 50.0);
-    let v = serde_json::json!({"frames": [
-        {"file_path": "views/rgb/000.exr", "transform_matrix": c.transform_matrix,
-         "fl_x": 50.0, "fl_y": 50.0, "cx": 32.0, "cy": 24.0, "w": 64, "h": 48}]});
-    std::fs::write(&cams, v.to_string()).unwrap();
+    cameras_json_sized(&cams, 64, 48, 50.0);
     let render = |spp: &str, extra: &[&str], out: &str| {
         let out = dir.path().join(out);
         let mut args = vec![
