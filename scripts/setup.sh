@@ -22,8 +22,7 @@ fi
 
 # Open Image Denoise from the venv's pyoidn wheel (lib/libOpenImageDenoise.so*): the oidn
 # crate links it from $OIDN_DIR/lib and build.rs embeds that directory as the rpath.
-OIDN_DIR=$(.venv/bin/python -c 'import importlib.util as u, os; print(os.path.join(u.find_spec("pyoidn").submodule_search_locations[0], "oidn"))')
-export OIDN_DIR
+source scripts/oidn_env.sh
 say "building lightfuse (release, --features denoise)"
 cargo build --release --locked --bins --features denoise ${QUIET:+--quiet}
 

@@ -5,8 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 QUIET=1 bash scripts/setup.sh
 # The `denoise` feature links Open Image Denoise from the venv's pyoidn (as scripts/setup.sh).
-OIDN_DIR=$(.venv/bin/python -c 'import importlib.util as u, os; print(os.path.join(u.find_spec("pyoidn").submodule_search_locations[0], "oidn"))')
-export OIDN_DIR
+source scripts/oidn_env.sh
 # Chromium and its driver (Debian packages) for the browser test of the evaluation report.
 if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then
   echo "== installing chromium and chromium-driver (Debian) for the report's browser test"
