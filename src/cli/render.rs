@@ -42,14 +42,13 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
             a.filter_width
         )));
     }
-    if a.denoise && (a.baked || !crate::shade::denoise::available()) {
-        return Err(Error::Usage(if a.baked {
-            "--denoise: a --baked render is splatted and has no noise to remove".into()
-        } else {
-            "--denoise: this lightfuse was built without the `denoise` feature (Open Image \
-             Denoise); `bash scripts/setup.sh` builds with it"
-                .to_string()
-        }));
+    if a.denoise && a.baked {
+        return Err(Error::Usage(
+            "--denoise: a --baked render is splatted and has no noise to remove".into(),
+        ));
+    }
+    if a.denoise {
+        crate::shade::denoise::require("")?;
     }
     let scene = crate::io::read_scene(&a.scene)?;
     let state = select_state(&scene, a)?;

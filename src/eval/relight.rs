@@ -33,8 +33,9 @@
 //! Denoise's `RT` filter in HDR mode with the same two guides ([`crate::shade::denoise`]; OptiX
 //! needs an NVIDIA GPU, OIDN is its CPU counterpart and Blender's own). Each traced image is
 //! denoised on its own (both rows, raw and rescaled), with guides from the view's pixel-centre
-//! records, pixels that saw only the environment kept as rendered ([`denoise_render`]). Baked is splatted, noise-free, and is not
-//! denoised. `--no-denoise` compares the images as rendered (the report's `denoise` says which).
+//! records, pixels that saw only the environment kept as rendered ([`denoise_render`]).
+//! Baked is splatted, noise-free, and is not denoised. `--no-denoise` compares the images as
+//! rendered (the report's `denoise` says which).
 
 use crate::error::{Error, Result};
 use crate::eval::html;
@@ -293,13 +294,8 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             opts.spp
         )));
     }
-    if opts.denoise && !crate::shade::denoise::available() {
-        return Err(Error::Usage(
-            "evaluate denoises the traced rows like the paper, but this lightfuse was built \
-             without the `denoise` feature (Open Image Denoise): run `bash scripts/setup.sh`, \
-             which builds with it, or pass --no-denoise to compare the images as rendered"
-                .into(),
-        ));
+    if opts.denoise {
+        crate::shade::denoise::require("or pass --no-denoise to compare the images as rendered")?;
     }
     let d = Dataset::read(&opts.dataset)?;
     check_dataset(&d)?;
@@ -348,11 +344,10 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             let Some(rel) = &f.albedo_file_path else {
                 continue;
             };
-            let truth = d.frame_planes(rel, &["R", "G", "B"], &f.camera)?;
+            let truth = d.frame_rgb(rel, &f.camera)?;
             let p = Primaries::trace(&placed, &filter, &f.camera, 1, opts.seed);
             let aovs = p.aovs();
-            for (i, (&z, &a)) in aovs.depth.iter().zip(&aovs.albedo).enumerate() {
-                let t = [truth[0][i], truth[1][i], truth[2][i]];
+            for ((&z, &a), &t) in aovs.depth.iter().zip(&aovs.albedo).zip(&truth) {
                 if z > 0.0 && t.iter().any(|&v| v > 0.0) {
                     pairs.push((a, t));
                 }
@@ -410,10 +405,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                 }
                 let (p, aovs) = primaries.as_ref().expect("traced above");
                 let (w, h) = (cam.w, cam.h);
-                let truth = d.frame_planes(&frame.file_path, &["R", "G", "B"], cam)?;
-                let truth: Vec<[f32; 3]> = (0..truth[0].len())
-                    .map(|i| [truth[0][i], truth[1][i], truth[2][i]])
-                    .collect();
+                let truth = d.frame_rgb(&frame.file_path, cam)?;
                 let env = &envs[r].0;
                 let bg = environment_image(env, cam);
                 let mut traced = Vec::new();
@@ -593,10 +585,7 @@ fn material_view(
         html::srgb_image(&aovs.albedo, w, h),
     );
     if let Some(rel) = &frame.albedo_file_path {
-        let t = d.frame_planes(rel, &["R", "G", "B"], &frame.camera)?;
-        let t: Vec<[f32; 3]> = (0..t[0].len())
-            .map(|i| [t[0][i], t[1][i], t[2][i]])
-            .collect();
+        let t = d.frame_rgb(rel, &frame.camera)?;
         add(
             "base_color_truth",
             "albedo (Cycles' pass)",

@@ -278,12 +278,17 @@ impl Dataset {
         let Some(rel) = frame.albedo_file_path.as_deref() else {
             return Ok(None);
         };
-        let p = read_planes(&self.path(rel), &["R", "G", "B"], &frame.camera)?;
-        Ok(Some(
-            (0..p[0].len())
-                .map(|i| [p[0][i], p[1][i], p[2][i]])
-                .collect(),
-        ))
+        self.frame_rgb(rel, &frame.camera).map(Some)
+    }
+
+    /// Ground truth, evaluation only: the `R, G, B` of the image `relative` (a frame's file or
+    /// its albedo pass) as row-major pixels, checked to be `camera`'s size (as
+    /// [`Dataset::frame_planes`]).
+    pub fn frame_rgb(&self, relative: &str, camera: &Camera) -> Result<Vec<[f32; 3]>> {
+        let p = self.frame_planes(relative, &["R", "G", "B"], camera)?;
+        Ok((0..p[0].len())
+            .map(|i| [p[0][i], p[1][i], p[2][i]])
+            .collect())
     }
 
     /// Ground truth, evaluation only: planes `names` of the image `relative` (a frame's file),

@@ -118,6 +118,22 @@ pub fn available() -> bool {
     cfg!(feature = "denoise")
 }
 
+/// Ok when this build can denoise; otherwise the error a command that was asked to denoise
+/// gives before doing any work: what is missing, how to get it, and `alternative` (e.g. "or
+/// pass --no-denoise"), if any.
+pub fn require(alternative: &str) -> Result<()> {
+    if available() {
+        return Ok(());
+    }
+    Err(Error::Usage(format!(
+        "denoising needs Open Image Denoise, but this lightfuse was built without the `denoise` \
+         feature: `bash scripts/setup.sh` installs the library and builds with it (by hand: \
+         OIDN_DIR=<venv>/lib/python3.X/site-packages/pyoidn/oidn cargo build --release \
+         --features denoise){}{alternative}",
+        if alternative.is_empty() { "" } else { "; " }
+    )))
+}
+
 /// Denoises a path-traced HDR image (`width × height` pixels, row-major, scene-linear RGB) with
 /// OIDN's `RT` filter in HDR mode, guided by `albedo` (in [0, 1]) and `normal` (in [-1, 1],
 /// world or view space); see the [module documentation](self) for what the inputs must be and
@@ -140,13 +156,7 @@ pub fn denoise_hdr(
     }
     #[cfg(not(feature = "denoise"))]
     {
-        Err(Error::Usage(
-            "denoising needs Open Image Denoise, but LightFuse was built without the `denoise` \
-             feature; `bash scripts/setup.sh` installs the library and builds with it \
-             (by hand: OIDN_DIR=<venv>/lib/python3.X/site-packages/pyoidn/oidn cargo build \
-             --release --features denoise)"
-                .into(),
-        ))
+        require("").map(|()| Vec::new())
     }
 }
 

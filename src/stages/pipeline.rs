@@ -77,14 +77,9 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
         )));
     }
     let paper = opts.preset == "paper";
-    if opts.denoise && !crate::shade::denoise::available() {
+    if opts.denoise {
         // Checked here too, so that the run fails before the stages rather than after them.
-        return Err(Error::Usage(
-            "lightfuse run denoises the evaluation like the paper, but this lightfuse was built \
-             without the `denoise` feature (Open Image Denoise): run `bash scripts/setup.sh`, \
-             which builds with it, or pass --no-denoise"
-                .into(),
-        ));
+        crate::shade::denoise::require("or pass --no-denoise to evaluate undenoised")?;
     }
     let dataset = crate::io::dataset::Dataset::read(&opts.dataset)?;
     crate::eval::relight::check_dataset(&dataset)?;
