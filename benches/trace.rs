@@ -16,6 +16,16 @@
 //!   rayon over rows, as `lightfuse render` does for a view (the Cycles comparison of the same
 //!   work is `lightfuse bench`).
 //!
+//! - `render_reconstruction_16spp`: the same one-bounce image at 16 spp of a *learned* scene,
+//!   stage 1's reconstruction of the demo dataset (`bash scripts/bench_scene.sh` makes it in
+//!   `data/bench`; `LIGHTFUSE_BENCH_DIR` points elsewhere; skipped with a message when absent),
+//!   from the dataset's first camera of its first state, in that state's placement; throughput is
+//!   path samples. Learned surfels are larger, overlap more and are less opaque than surfelized
+//!   meshes, so this is what stages 2-3 and `evaluate` pay. Also printed for both scenes: leaf
+//!   tests, hits taken and hits composited per camera ray, and leaf tests and hits per
+//!   visibility ray (from each camera ray's surface, 1 mm off it, into a random direction of its
+//!   hemisphere).
+//!
 //! Run: `cargo bench --bench trace`. Numbers are noisy on a shared machine.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
@@ -548,5 +558,122 @@ fn path_replay(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, build, rays, backward, render, path_replay);
+/// Leaf tests and hits per camera ray (pixel centres) and per visibility ray leaving each
+/// camera ray's surface into its hemisphere, printed for the record.
+fn print_ray_stats(name: &str, placed: &lightfuse::trace::Placed, cam: &Camera) {
+    use lightfuse::trace::RayStats;
+    let (mut primary, mut vis) = (RayStats::default(), RayStats::default());
+    let mut rng = SplitMix(5);
+    for y in 0..cam.h {
+        for x in 0..cam.w {
+            let (o, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+            let rec = placed.composite_stats(o, d, 0.0, f32::INFINITY, &mut primary);
+            if rec.hits == 0 || rec.alpha < 0.5 {
+                continue;
+            }
+            let n = Vec3::from_array(rec.unit_normal());
+            let p = Vec3::from_array(rec.position) / rec.alpha;
+            let mut dir = Vec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            )
+            .normalize();
+            if dir.dot(n) < 0.0 {
+                dir = -dir;
+            }
+            placed.transmittance_stats(
+                (p + 1e-3 * n).to_array(),
+                dir.to_array(),
+                0.0,
+                f32::INFINITY,
+                &mut vis,
+            );
+        }
+    }
+    let per = |v: u64, s: &RayStats| v as f64 / s.rays.max(1) as f64;
+    eprintln!(
+        "{name}: per camera ray {:.1} leaf tests, {:.1} hits taken, {:.1} composited, {:.2} traversals; \
+         per visibility ray {:.1} leaf tests, {:.1} hits ({} rays)",
+        per(primary.leaf_tests, &primary),
+        per(primary.hits, &primary),
+        per(primary.composited, &primary),
+        per(primary.traversals, &primary),
+        per(vis.leaf_tests, &vis),
+        per(vis.hits, &vis),
+        vis.rays
+    );
+}
+
+/// Stage 1's reconstruction of the demo (see the module doc), if `scripts/bench_scene.sh` made it.
+fn reconstruction(c: &mut Criterion) {
+    use lightfuse::io::cameras::read_views;
+    let dir = std::env::var("LIGHTFUSE_BENCH_DIR").unwrap_or_else(|_| "data/bench".into());
+    let dir = std::path::Path::new(&dir);
+    // Benches run in the package root.
+    let (scene_path, dataset) = (dir.join("recon/scene.glb"), dir.join("dataset"));
+    if !scene_path.is_file() || !dataset.join("dataset.json").is_file() {
+        eprintln!(
+            "render_reconstruction_16spp: skipped, no {} (make it with `bash scripts/bench_scene.sh`)",
+            scene_path.display()
+        );
+        return;
+    }
+    let scene = lightfuse::io::gltf::read(&scene_path).expect("reading the bench reconstruction");
+    let views = read_views(&dataset, None, &scene.states[0].name).expect("reading its cameras");
+    let cam = views[0].camera;
+    let traced = TraceScene::new(&scene);
+    let placed = traced.place_state(&scene.states[0]);
+    let env = EnvMap::new(&sky(), 0.0);
+    let estimator = Estimator::new(&placed, &env, self_hit_epsilon(&scene, &scene.states[0]));
+    let filter = PixelFilter::new(1.5);
+    const SPP: u32 = 16;
+    print_ray_stats(
+        &format!(
+            "reconstruction ({} surfels, {}x{} view {})",
+            scene.surfel_count(),
+            cam.w,
+            cam.h,
+            views[0].name
+        ),
+        &placed,
+        &cam,
+    );
+    let room = room(200_000);
+    let room_traced = TraceScene::new(&room);
+    print_ray_stats(
+        "200k room (640x480)",
+        &room_traced.place_state(&room.states[0]),
+        &camera(),
+    );
+    let mut group = c.benchmark_group("render_reconstruction_16spp");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(20));
+    group.throughput(Throughput::Elements((cam.w * cam.h * SPP) as u64));
+    group.bench_function("one_bounce", |b| {
+        b.iter(|| {
+            (0..cam.h)
+                .into_par_iter()
+                .map(|y| {
+                    (0..cam.w)
+                        .map(|x| estimator.pixel(&cam, &filter, (x, y), SPP, 0).rgb[1])
+                        .sum::<f32>()
+                })
+                .sum::<f32>()
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    build,
+    rays,
+    backward,
+    render,
+    path_replay,
+    reconstruction
+);
 criterion_main!(benches);

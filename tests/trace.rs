@@ -13,7 +13,7 @@
 use lightfuse::scene::synthetic::SplitMix;
 use lightfuse::scene::{Component, Rigid, Scene, Surfels};
 use lightfuse::trace::reference::{composite_brute, transmittance_brute};
-use lightfuse::trace::{SurfaceRecord, TraceScene, BATCH, MAX_OPACITY, T_MIN};
+use lightfuse::trace::{RayStats, SurfaceRecord, TraceScene, BATCH, MAX_OPACITY, T_MIN};
 
 fn push(s: &mut Surfels, mu: [f32; 3], q: [f32; 4], scale: [f32; 2], alpha: f32, color: f32) {
     s.push(
@@ -239,6 +239,49 @@ fn more_hits_than_a_batch_are_composited_in_order() {
     assert_eq!(fast.hits as usize, n);
     assert_eq!(slow.hits as usize, n);
     close("stack", &fast, &slow, 1e-5);
+}
+
+#[test]
+fn ray_stats_count_what_the_traversal_did() {
+    // 101 faint parallel surfels on one axis: all composited (0.95^101 ≈ 0.006 > T_MIN), in
+    // four batches of at most BATCH, so four traversals of the one component; a visibility ray
+    // multiplies all 101 in a single traversal.
+    let n = 3 * BATCH + 5;
+    let scene = scene_of(vec![stack(n, 0.05, |_| 0.5)]);
+    let id = vec![Rigid::IDENTITY];
+    let traced = TraceScene::new(&scene);
+    let placed = traced.place(&id);
+    let (o, d) = ([0.01, 0.02, 1.0], [0.0, 0.0, -1.0]);
+    let mut stats = RayStats::default();
+    let counted = placed.composite_stats(o, d, 0.0, f32::INFINITY, &mut stats);
+    assert_eq!(counted, placed.composite(o, d, 0.0, f32::INFINITY));
+    assert_eq!(
+        (stats.rays, stats.composited, stats.traversals),
+        (1, n as u64, 4)
+    );
+    // Each hit is taken once, in the batch it belongs to; a leaf test can only take one.
+    assert!(
+        stats.hits >= n as u64 && stats.leaf_tests >= stats.hits,
+        "{stats:?}"
+    );
+    let mut vis = RayStats::default();
+    let t = placed.transmittance_stats(o, d, 0.0, f32::INFINITY, &mut vis);
+    assert_eq!(t, placed.transmittance(o, d, 0.0, f32::INFINITY));
+    assert_eq!(
+        (vis.rays, vis.hits, vis.traversals, vis.composited),
+        (1, n as u64, 1, 0)
+    );
+    assert!(vis.leaf_tests >= vis.hits);
+    // A ray that misses everything enters nothing.
+    let mut miss = RayStats::default();
+    placed.composite_stats(
+        [5.0, 5.0, 1.0],
+        [0.0, 0.0, -1.0],
+        0.0,
+        f32::INFINITY,
+        &mut miss,
+    );
+    assert_eq!((miss.hits, miss.composited, miss.traversals), (0, 0, 0));
 }
 
 #[test]

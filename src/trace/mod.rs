@@ -42,7 +42,7 @@ pub use crate::kernel::{CUTOFF, MAX_OPACITY, MIN_ALPHA, T_MIN};
 pub use backward::{
     scatter_material_grad, MaterialGrads, TraceGradients, TraceRay, TraceSurfelGrads, RAY_CHUNK,
 };
-pub use placed::Placed;
+pub use placed::{Placed, RayStats};
 pub use record::{RecordGrad, SurfaceRecord, WeightedHit};
 pub use scene::TraceScene;
 pub use surfel::surfel_bounds;

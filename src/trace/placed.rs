@@ -7,6 +7,7 @@ use super::T_MIN;
 use crate::scene::Rigid;
 use glam::{Mat3, Vec3};
 use obvhs::ray::{Ray, RayHit};
+use obvhs_glam::UVec2;
 
 /// One component placed in the world.
 #[derive(Clone, Copy, Debug)]
@@ -40,6 +41,67 @@ fn ray_box(o: Vec3, inv_d: Vec3, (lo, hi): (Vec3, Vec3), t_lo: f32, t_hi: f32) -
 
 fn obvhs_ray(o: Vec3, d: Vec3, t_lo: f32, t_hi: f32) -> Ray {
     Ray::new(o.to_array().into(), d.to_array().into(), t_lo, t_hi)
+}
+
+/// What rays cost, summed over the rays traced with [`Placed::composite_stats`] or
+/// [`Placed::transmittance_stats`]: the figures a profile of the tracer starts from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RayStats {
+    /// Rays traced.
+    pub rays: u64,
+    /// Surfels whose hit test ran (their leaf's bounds were entered).
+    pub leaf_tests: u64,
+    /// Hits that passed the test and were taken: into a composite's sorted batch (some later
+    /// evicted or cut), or multiplied into a visibility ray's transmittance.
+    pub hits: u64,
+    /// Hits composited (a composite's `SurfaceRecord::hits`).
+    pub composited: u64,
+    /// BVH traversals: a composite traverses once per batch of [`super::BATCH`] hits, and each
+    /// component whose world bounds the ray meets counts once.
+    pub traversals: u64,
+}
+
+impl RayStats {
+    pub fn add(&mut self, other: &RayStats) {
+        self.rays += other.rays;
+        self.leaf_tests += other.leaf_tests;
+        self.hits += other.hits;
+        self.composited += other.composited;
+        self.traversals += other.traversals;
+    }
+}
+
+/// Where the traversals count their work: `()` counts nothing (and compiles to nothing), a
+/// [`RayStats`] counts everything. One traversal serves both, so what is counted is exactly
+/// what the fast path does.
+pub(super) trait Tally {
+    fn leaf_test(&mut self);
+    fn hit(&mut self);
+    fn traversal(&mut self);
+}
+
+impl Tally for () {
+    #[inline(always)]
+    fn leaf_test(&mut self) {}
+    #[inline(always)]
+    fn hit(&mut self) {}
+    #[inline(always)]
+    fn traversal(&mut self) {}
+}
+
+impl Tally for RayStats {
+    #[inline(always)]
+    fn leaf_test(&mut self) {
+        self.leaf_tests += 1;
+    }
+    #[inline(always)]
+    fn hit(&mut self) {
+        self.hits += 1;
+    }
+    #[inline(always)]
+    fn traversal(&mut self) {
+        self.traversals += 1;
+    }
 }
 
 /// A [`TraceScene`] in one placement (a state or a layout).
@@ -93,7 +155,22 @@ impl<'a> Placed<'a> {
         t_min: f32,
         t_max: f32,
     ) -> SurfaceRecord {
-        self.composite_visit(origin, dir, t_min, t_max, |_| {})
+        self.composite_visit(origin, dir, t_min, t_max, &mut (), |_| {})
+    }
+
+    /// [`Placed::composite`], adding what the ray cost to `stats`.
+    pub fn composite_stats(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        stats: &mut RayStats,
+    ) -> SurfaceRecord {
+        let record = self.composite_visit(origin, dir, t_min, t_max, stats, |_| {});
+        stats.rays += 1;
+        stats.composited += record.hits as u64;
+        record
     }
 
     /// [`Placed::composite`], also appending every composited hit's surfel and weight to `hits`
@@ -108,7 +185,7 @@ impl<'a> Placed<'a> {
         t_max: f32,
         hits: &mut Vec<WeightedHit>,
     ) -> SurfaceRecord {
-        self.composite_visit(origin, dir, t_min, t_max, |h| hits.push(h))
+        self.composite_visit(origin, dir, t_min, t_max, &mut (), |h| hits.push(h))
     }
 
     #[inline]
@@ -118,12 +195,13 @@ impl<'a> Placed<'a> {
         dir: [f32; 3],
         t_min: f32,
         t_max: f32,
+        tally: &mut impl Tally,
         mut visit: impl FnMut(WeightedHit),
     ) -> SurfaceRecord {
         let o = Vec3::from_array(origin);
         let d = Vec3::from_array(dir);
         let mut record = SurfaceRecord::default();
-        self.walk(o, d, t_min, t_max, |w, c, h| {
+        self.walk(o, d, t_min, t_max, tally, |w, c, h| {
             let blas = &self.scene.blas[c];
             let slot = h.slot as usize;
             let mut n = self.instances[c].rotation * Vec3::from_array(blas.hit[slot].n);
@@ -152,6 +230,7 @@ impl<'a> Placed<'a> {
         d: Vec3,
         t_min: f32,
         t_max: f32,
+        tally: &mut impl Tally,
         mut visit: impl FnMut(f32, usize, &Hit),
     ) {
         let inv_d = d.recip();
@@ -167,6 +246,7 @@ impl<'a> Placed<'a> {
                 if !ray_box(o, inv_d, bounds, after.0, batch.bound()) {
                     continue;
                 }
+                tally.traversal();
                 let (lo, ld) = inst.ray_to_local(o, d);
                 let key_base = (c as u64) << 32;
                 let mut unused = RayHit::none();
@@ -176,6 +256,7 @@ impl<'a> Placed<'a> {
                     obvhs_ray(lo, ld, after.0, batch.bound()),
                     &mut unused,
                     |_, slot| {
+                        tally.leaf_test();
                         let Some((t, alpha)) = blas.hit[slot].hit(lo, ld, after.0, batch.bound())
                         else {
                             return f32::INFINITY;
@@ -184,6 +265,7 @@ impl<'a> Placed<'a> {
                         if !(before(after, (t, key)) && batch.accepts(t, key)) {
                             return f32::INFINITY;
                         }
+                        tally.hit();
                         batch.insert(Hit {
                             t,
                             alpha,
@@ -207,6 +289,31 @@ impl<'a> Placed<'a> {
     /// Transmittance Π (1 − α_eff) along `origin + t dir`, `t_min < t < t_max`, multiplied in
     /// whatever order the BVH yields hits. Returns 0 as soon as it falls below [`T_MIN`].
     pub fn transmittance(&self, origin: [f32; 3], dir: [f32; 3], t_min: f32, t_max: f32) -> f32 {
+        self.transmittance_tally(origin, dir, t_min, t_max, &mut ())
+    }
+
+    /// [`Placed::transmittance`], adding what the ray cost to `stats`.
+    pub fn transmittance_stats(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        stats: &mut RayStats,
+    ) -> f32 {
+        stats.rays += 1;
+        self.transmittance_tally(origin, dir, t_min, t_max, stats)
+    }
+
+    #[inline]
+    fn transmittance_tally(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        tally: &mut impl Tally,
+    ) -> f32 {
         let o = Vec3::from_array(origin);
         let d = Vec3::from_array(dir);
         let inv_d = d.recip();
@@ -218,28 +325,40 @@ impl<'a> Placed<'a> {
             if !ray_box(o, inv_d, bounds, t_min, t_max) {
                 continue;
             }
+            tally.traversal();
             let (lo, ld) = inst.ray_to_local(o, d);
             let ray = obvhs_ray(lo, ld, t_min, t_max);
-            let mut state = bvh.new_ray_traversal(ray);
-            let mut unused = RayHit::none();
-            let mut alpha = 0.0;
-            // The yielding traversal stops at every hit (the closure returns its t below the
-            // ray's tmax), so the loop can end the moment the ray is blocked; tmax is put back
-            // each time because a visibility ray needs every hit, not the closest.
-            while bvh.ray_traverse_dynamic(&mut state, &mut unused, |_, slot| {
-                match blas.hit[slot].hit(lo, ld, t_min, t_max) {
-                    Some((t, a)) if t > t_min && t < t_max => {
-                        alpha = a;
-                        t
+            // obvhs's own traversal loop (its `traverse!` macro, which its `ray_traverse` is
+            // built on) with a primitive step that multiplies every hit in and `break`s the
+            // moment the ray is blocked. The ray's tmax never shrinks: a visibility ray needs
+            // every hit, not the closest. (Its yielding traversal, used before, visits the same
+            // hits in the same order but returns to the caller at every one.)
+            let mut state = bvh.new_traversal(ray.direction);
+            let mut node;
+            let mut blocked = false;
+            obvhs::traverse!(
+                bvh,
+                node,
+                state,
+                node.intersect_ray(&ray, state.oct_inv4),
+                {
+                    tally.leaf_test();
+                    if let Some((t, a)) =
+                        blas.hit[state.primitive_id as usize].hit(lo, ld, t_min, t_max)
+                    {
+                        if t > t_min && t < t_max {
+                            tally.hit();
+                            tr *= 1.0 - a;
+                            if tr < T_MIN {
+                                blocked = true;
+                                break;
+                            }
+                        }
                     }
-                    _ => f32::INFINITY,
                 }
-            }) {
-                tr *= 1.0 - alpha;
-                if tr < T_MIN {
-                    return 0.0;
-                }
-                state.ray.tmax = t_max;
+            );
+            if blocked {
+                return 0.0;
             }
         }
         tr
