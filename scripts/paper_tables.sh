@@ -7,11 +7,15 @@
 #   Table 4  stage 3's switches on bedroom (invert with the naive estimator, fixed 8 spp,
 #            8 -> 16 spp), on the full run's refined geometry.
 # Every step is skipped when its output exists and resumes from its checkpoint when it was
-# killed, so the script can be stopped and run again. Writes <out>/tables.md (and prints it);
+# killed, so the script can be stopped and run again. Each evaluation's eval.json and eval.md
+# are kept in <out>/results/<preset>[/<variant>] (a few kB), and a row whose results are there
+# is not run again: with --prune, a preset's dataset and work folders (~GBs) are deleted as soon
+# as every requested table has what it needs from them, so the tables can be measured over
+# several sittings without keeping the big outputs. Writes <out>/tables.md (and prints it);
 # with --readme, also replaces the block between the README's `paper-tables` markers.
 #
 # Usage: bash scripts/paper_tables.sh [--out data/paper] [--presets "bedroom playroom livingroom kitchen"]
-#            [--tables "1 3 4"] [--preset fast|paper] [--test-views 8] [--readme]
+#            [--tables "1 3 4"] [--preset fast|paper] [--test-views 8] [--prune] [--readme]
 # Cost on this machine (2 cores), fast preset, per preset: generation ~15 min, stage 1 ~25-45
 # min, stage 2 ~20 min; Tables 3 and 4 add 8 inverse renderings and evaluations of bedroom.
 # Hours in all: run it overnight.
@@ -23,6 +27,7 @@ tables="1 3 4"
 stage_preset=fast
 test_views=8
 readme=0
+prune=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) out=$2; shift 2 ;;
@@ -31,7 +36,8 @@ while [ $# -gt 0 ]; do
     --preset) stage_preset=$2; shift 2 ;;
     --test-views) test_views=$2; shift 2 ;;
     --readme) readme=1; shift ;;
-    -h | --help) sed -n '2,19p' "$0"; exit 0 ;;
+    --prune) prune=1; shift ;;
+    -h | --help) sed -n '2,23p' "$0"; exit 0 ;;
     *) echo "paper_tables.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -53,12 +59,36 @@ dataset() {
   echo "$ds"
 }
 
-# Stages 1-3 and the evaluation of one preset: the full run every table starts from.
+# Keeps an evaluation's small outputs: $1 the work folder, $2 the results folder.
+keep() {
+  mkdir -p "$2"
+  cp -p "$1/eval/eval.json" "$1/eval/eval.md" "$2/"
+}
+
+# Stages 1-3 and the evaluation of one preset: the full run every table starts from. Skipped
+# when its results are kept, unless $2 = need (a variant is about to start from its outputs).
 full_run() {
   local ds
+  if [ -f "$out/results/$1/eval.json" ] && [ "${2:-}" != need ]; then return; fi
+  if [ -f "$out/results/$1/eval.json" ] && [ -f "$out/$1/work/refined.glb" ]; then return; fi
   ds=$(dataset "$1")
   say "$1: lightfuse run ($stage_preset)"
   "$lf" run "$ds" -o "$out/$1/work" --preset "$stage_preset" >&2
+  keep "$out/$1/work" "$out/results/$1"
+}
+
+# Deletes a preset's dataset and work folders (--prune) once nothing requested still needs them.
+prune_preset() {
+  [ "$prune" = 1 ] || return 0
+  if [ "$1" = bedroom ]; then
+    local v
+    for v in t3-no-coverage t3-no-scale t3-no-depth t3-no-normal t4-naive t4-fixed8 t4-max16; do
+      case "$v" in t3-*) [[ " $tables " == *" 3 "* ]] || continue ;; t4-*) [[ " $tables " == *" 4 "* ]] || continue ;; esac
+      [ -f "$out/results/bedroom/$v/eval.json" ] || return 0
+    done
+  fi
+  say "$1: results kept in $out/results/$1; deleting its dataset and work folders (--prune)"
+  rm -rf "${out:?}/$1/dataset" "${out:?}/$1/work" "${out:?}/$1"/t[34]-*
 }
 
 # A variant work folder: the full run's earlier outputs copied in, then the variant's stages.
@@ -67,6 +97,8 @@ full_run() {
 variant() {
   local name=$1 files=$2 refine_flags=$3 invert_flags=$4
   local ds=$out/bedroom/dataset base=$out/bedroom/work w=$out/bedroom/$name
+  [ -f "$out/results/bedroom/$name/eval.json" ] && return
+  full_run bedroom need
   mkdir -p "$w"
   for f in $files; do [ -f "$w/$f" ] || cp -p "$base/$f" "$w/$f"; done
   if [ ! -f "$w/refined.glb" ]; then
@@ -83,22 +115,22 @@ variant() {
     say "bedroom/$name: lightfuse evaluate"
     "$lf" evaluate "$ds" "$w" --no-images >&2
   fi
+  keep "$w" "$out/results/bedroom/$name"
 }
 
 for t in $tables; do
   case "$t" in
-    1) for p in $presets; do full_run "$p"; done ;;
+    1) for p in $presets; do full_run "$p"; [ "$p" = bedroom ] || prune_preset "$p"; done ;;
     3)
-      full_run bedroom
       for s in coverage scale depth normal; do variant "t3-no-$s" "scene.glb" "--no-$s" ""; done ;;
     4)
-      full_run bedroom
       variant t4-naive "scene.glb refined.glb" "" "--estimator naive"
       variant t4-fixed8 "scene.glb refined.glb" "" "--spp-schedule fixed8"
       variant t4-max16 "scene.glb refined.glb" "" "--spp-schedule max16" ;;
     *) echo "paper_tables.sh: --tables: expected 1, 3 or 4, found $t" >&2; exit 2 ;;
   esac
 done
+[[ " $presets $tables " == *" bedroom "* || " $tables " == *" 3 "* || " $tables " == *" 4 "* ]] && prune_preset bedroom
 
 # The Markdown: every figure read from the eval.json files just made.
 "$py" - "$out" "$tables" "$presets" "$stage_preset" "$test_views" > "$out/tables.md" <<'PY'
@@ -107,7 +139,7 @@ out, tables, presets, stage_preset, test_views = sys.argv[1], sys.argv[2].split(
 ROWS = [("lightfuse", "LightFuse"), ("baked", "Baked"), ("no_retracing", "No re-tracing")]
 
 def ev(folder):
-    with open(os.path.join(out, folder, "eval", "eval.json")) as f:
+    with open(os.path.join(out, "results", folder, "eval.json")) as f:
         return json.load(f)
 
 def fig(row, key="raw"):
@@ -122,7 +154,7 @@ if "1" in tables:
     print("Table 1, novel-state relighting (paper: LightFuse 25.38 / 0.852 averaged over its four scenes)\n")
     print("| Scene | " + " | ".join(f"{n} PSNR | {n} SSIM" for _, n in ROWS) + " | LightFuse rescaled PSNR | SSIM |")
     print("|---" * (2 * len(ROWS) + 3) + "|")
-    per = {p: ev(f"{p}/work")["relighting"] for p in presets}
+    per = {p: ev(p)["relighting"] for p in presets}
     for p, rows in per.items():
         print(f"| {p} | " + " | ".join(fig(rows[k]) for k, _ in ROWS) + f" | {fig(rows['lightfuse'], 'rescaled')} |")
     mean = lambda k, key, m: sum(per[p][k][key][m] for p in presets) / len(presets)
@@ -130,7 +162,7 @@ if "1" in tables:
           + f" | {mean('lightfuse', 'rescaled', 'psnr_srgb_db'):.2f} | {mean('lightfuse', 'rescaled', 'ssim_srgb'):.3f} |\n")
 
 def ablation(title, variants):
-    full = ev("bedroom/work")["relighting"]["lightfuse"]
+    full = ev("bedroom")["relighting"]["lightfuse"]
     print(f"{title}\n")
     print("| Variant | PSNR | SSIM | rescaled PSNR | SSIM | paper PSNR | SSIM | PSNR change vs full: ours / paper |")
     print("|---|---|---|---|---|---|---|---|")
