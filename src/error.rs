@@ -23,6 +23,13 @@ pub enum Error {
     /// A command-line argument or combination of arguments is wrong.
     #[error("{0}")]
     Usage(String),
+    /// A library LightFuse calls failed at run time on valid input (e.g. Open Image Denoise
+    /// could not create its device): not the user's input, so exit code 1.
+    #[error("{library} failed: {message}")]
+    External {
+        library: &'static str,
+        message: String,
+    },
 }
 
 impl Error {
@@ -49,6 +56,7 @@ impl Error {
     pub fn is_user_error(&self) -> bool {
         match self {
             Error::Invalid { .. } | Error::Usage(_) => true,
+            Error::External { .. } => false,
             Error::Io { source, .. } => matches!(
                 source.kind(),
                 std::io::ErrorKind::NotFound
@@ -62,3 +70,19 @@ impl Error {
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failing_library_is_not_the_users_error() {
+        let e = Error::External {
+            library: "Open Image Denoise",
+            message: "no device".into(),
+        };
+        assert!(!e.is_user_error());
+        assert_eq!(e.to_string(), "Open Image Denoise failed: no device");
+        assert!(Error::Usage("x".into()).is_user_error());
+    }
+}

@@ -152,7 +152,10 @@ pub fn denoise_hdr(
     #[cfg(feature = "denoise")]
     {
         oidn_rt(color, albedo, normal, width, height)
-            .map_err(|e| Error::Usage(format!("denoising with Open Image Denoise failed: {e}")))
+            .map_err(|e| Error::External {
+                library: "Open Image Denoise",
+                message: e.to_string(),
+            })
     }
     #[cfg(not(feature = "denoise"))]
     {
