@@ -151,11 +151,10 @@ pub fn denoise_hdr(
     check_inputs(color, albedo, normal, width, height)?;
     #[cfg(feature = "denoise")]
     {
-        oidn_rt(color, albedo, normal, width, height)
-            .map_err(|e| Error::External {
-                library: "Open Image Denoise",
-                message: e.to_string(),
-            })
+        oidn_rt(color, albedo, normal, width, height).map_err(|e| Error::External {
+            library: "Open Image Denoise",
+            message: e.to_string(),
+        })
     }
     #[cfg(not(feature = "denoise"))]
     {

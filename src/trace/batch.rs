@@ -64,10 +64,10 @@ impl HitBatch {
     #[inline]
     pub fn insert(&mut self, hit: Hit) {
         debug_assert!(self.accepts(hit.t, hit.key));
-        // Keys are unique (one hit per surfel per ray), so this is the one sorted slot. A
-        // binary search: a BVH yields hits in node order, not depth order, and a linear scan
-        // from the back was ~a quarter of the insert's time in a profile.
-        let p = self.hits[..self.len].partition_point(|h| before((h.t, h.key), (hit.t, hit.key)));
+        let mut p = self.len;
+        while p > 0 && before((hit.t, hit.key), (self.hits[p - 1].t, self.hits[p - 1].key)) {
+            p -= 1;
+        }
         if self.len == BATCH {
             // The farthest hit leaves: recompute rather than divide, to stay exact.
             self.hits.copy_within(p..BATCH - 1, p + 1);

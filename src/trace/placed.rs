@@ -204,7 +204,8 @@ impl<'a> Placed<'a> {
         self.walk(o, d, t_min, t_max, tally, |w, c, h| {
             let blas = &self.scene.blas[c];
             let slot = h.slot as usize;
-            let mut n = self.instances[c].rotation * Vec3::from_array(blas.hit[slot].n);
+            let surfel = &blas.hit[slot];
+            let mut n = self.instances[c].rotation * Vec3::from_array(surfel.n);
             if n.dot(d) > 0.0 {
                 n = -n;
             }
@@ -212,7 +213,7 @@ impl<'a> Placed<'a> {
             record.add(w, h.t, x.to_array(), n.to_array(), &blas.material[slot]);
             visit(WeightedHit {
                 component: c as u32,
-                index: blas.index[slot],
+                index: surfel.index,
                 w,
             });
         });
@@ -257,11 +258,11 @@ impl<'a> Placed<'a> {
                     &mut unused,
                     |_, slot| {
                         tally.leaf_test();
-                        let Some((t, alpha)) = blas.hit[slot].hit(lo, ld, after.0, batch.bound())
-                        else {
+                        let surfel = &blas.hit[slot];
+                        let Some((t, alpha)) = surfel.hit(lo, ld, after.0, batch.bound()) else {
                             return f32::INFINITY;
                         };
-                        let key = key_base | blas.index[slot] as u64;
+                        let key = key_base | surfel.index as u64;
                         if !(before(after, (t, key)) && batch.accepts(t, key)) {
                             return f32::INFINITY;
                         }
@@ -329,13 +330,13 @@ impl<'a> Placed<'a> {
             let (lo, ld) = inst.ray_to_local(o, d);
             let ray = obvhs_ray(lo, ld, t_min, t_max);
             // obvhs's own traversal loop (its `traverse!` macro, which its `ray_traverse` is
-            // built on) with a primitive step that multiplies every hit in and `break`s the
-            // moment the ray is blocked. The ray's tmax never shrinks: a visibility ray needs
-            // every hit, not the closest. (Its yielding traversal, used before, visits the same
-            // hits in the same order but returns to the caller at every one.)
+            // built on), expanded here so that the moment the ray is blocked the function
+            // returns from inside it. (A `break` there, which the macro's doc suggests, only
+            // leaves its per-leaf loop: the traversal goes on.) The ray's tmax never shrinks: a
+            // visibility ray needs every hit, not the closest. Its yielding traversal, used
+            // before, visits the same hits in the same order but returns to the caller at each.
             let mut state = bvh.new_traversal(ray.direction);
             let mut node;
-            let mut blocked = false;
             obvhs::traverse!(
                 bvh,
                 node,
@@ -350,16 +351,12 @@ impl<'a> Placed<'a> {
                             tally.hit();
                             tr *= 1.0 - a;
                             if tr < T_MIN {
-                                blocked = true;
-                                break;
+                                return 0.0;
                             }
                         }
                     }
                 }
             );
-            if blocked {
-                return 0.0;
-            }
         }
         tr
     }

@@ -35,7 +35,8 @@ impl Blas {
         let bounds: Vec<Aabb> = (0..n)
             .into_par_iter()
             .map(|i| {
-                let (lo, hi) = surfel_bounds(s.position[i], s.rotation[i], s.scale[i]);
+                let (lo, hi) =
+                    surfel_bounds(s.position[i], s.rotation[i], s.scale[i], s.opacity[i]);
                 Aabb::new(lo.into(), hi.into())
             })
             .collect();
@@ -68,8 +69,8 @@ impl Blas {
         let hit = index
             .par_iter()
             .map(|&i| {
-                let i = i as usize;
-                HitSurfel::new(s.position[i], s.rotation[i], s.scale[i], s.opacity[i])
+                let k = i as usize;
+                HitSurfel::new(s.position[k], s.rotation[k], s.scale[k], s.opacity[k], i)
             })
             .collect();
         let material = index
