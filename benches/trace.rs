@@ -194,6 +194,21 @@ fn camera_of(w: u32, h: u32) -> Camera {
     Camera::look_at([0.3, 1.6, 3.6], [0.0, 0.8, -2.0], w, h, fl)
 }
 
+/// A ray leaving the surface point `p` of normal `n`, 1 mm off it, into a random direction of
+/// the hemisphere `n` faces.
+fn leave_surface(rng: &mut SplitMix, p: Vec3, n: Vec3) -> ([f32; 3], [f32; 3]) {
+    let mut d = Vec3::new(
+        rng.range(-1.0, 1.0),
+        rng.range(-1.0, 1.0),
+        rng.range(-1.0, 1.0),
+    )
+    .normalize();
+    if d.dot(n) < 0.0 {
+        d = -d;
+    }
+    ((p + 1e-3 * n).to_array(), d.to_array())
+}
+
 /// Visibility rays leaving random surfels (1 mm off the surface) into random directions of the
 /// hemisphere their normal faces.
 fn visibility_rays(scene: &Scene, count: usize) -> Vec<([f32; 3], [f32; 3])> {
@@ -212,16 +227,7 @@ fn visibility_rays(scene: &Scene, count: usize) -> Vec<([f32; 3], [f32; 3])> {
             let tf = state.transforms[c];
             let p = Vec3::from_array(tf.transform_point(s.position[i]));
             let n = Quat::from_array(tf.transform_rotation(s.rotation[i])) * Vec3::Z;
-            let mut d = Vec3::new(
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-            )
-            .normalize();
-            if d.dot(n) < 0.0 {
-                d = -d;
-            }
-            ((p + 1e-3 * n).to_array(), d.to_array())
+            leave_surface(&mut rng, p, n)
         })
         .collect()
 }
@@ -573,22 +579,8 @@ fn print_ray_stats(name: &str, placed: &lightfuse::trace::Placed, cam: &Camera) 
             }
             let n = Vec3::from_array(rec.unit_normal());
             let p = Vec3::from_array(rec.position) / rec.alpha;
-            let mut dir = Vec3::new(
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-            )
-            .normalize();
-            if dir.dot(n) < 0.0 {
-                dir = -dir;
-            }
-            placed.transmittance_stats(
-                (p + 1e-3 * n).to_array(),
-                dir.to_array(),
-                0.0,
-                f32::INFINITY,
-                &mut vis,
-            );
+            let (o, dir) = leave_surface(&mut rng, p, n);
+            placed.transmittance_stats(o, dir, 0.0, f32::INFINITY, &mut vis);
         }
     }
     let per = |v: u64, s: &RayStats| v as f64 / s.rays.max(1) as f64;

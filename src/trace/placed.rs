@@ -61,16 +61,6 @@ pub struct RayStats {
     pub traversals: u64,
 }
 
-impl RayStats {
-    pub fn add(&mut self, other: &RayStats) {
-        self.rays += other.rays;
-        self.leaf_tests += other.leaf_tests;
-        self.hits += other.hits;
-        self.composited += other.composited;
-        self.traversals += other.traversals;
-    }
-}
-
 /// Where the traversals count their work: `()` counts nothing (and compiles to nothing), a
 /// [`RayStats`] counts everything. One traversal serves both, so what is counted is exactly
 /// what the fast path does.
