@@ -585,12 +585,14 @@ fn print_ray_stats(name: &str, placed: &lightfuse::trace::Placed, cam: &Camera) 
     }
     let per = |v: u64, s: &RayStats| v as f64 / s.rays.max(1) as f64;
     eprintln!(
-        "{name}: per camera ray {:.1} leaf tests, {:.1} hits taken, {:.1} composited, {:.2} traversals; \
-         per visibility ray {:.1} leaf tests, {:.1} hits ({} rays)",
+        "{name}: per camera ray {:.1} nodes, {:.1} leaf tests, {:.1} hits taken, {:.1} composited, {:.2} traversals; \
+         per visibility ray {:.1} nodes, {:.1} leaf tests, {:.1} hits ({} rays)",
+        per(primary.nodes, &primary),
         per(primary.leaf_tests, &primary),
         per(primary.hits, &primary),
         per(primary.composited, &primary),
         per(primary.traversals, &primary),
+        per(vis.nodes, &vis),
         per(vis.leaf_tests, &vis),
         per(vis.hits, &vis),
         vis.rays

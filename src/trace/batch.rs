@@ -12,6 +12,21 @@ pub(crate) struct Hit {
     pub key: u64,
     /// Index into the component's leaf-ordered hit data.
     pub slot: u32,
+    /// Transmittance in front of this hit, kept by the batch (in what was padding).
+    front: f32,
+}
+
+impl Hit {
+    #[inline(always)]
+    pub fn new(t: f32, alpha: f32, key: u64, slot: u32) -> Self {
+        Hit {
+            t,
+            alpha,
+            key,
+            slot,
+            front: 0.0,
+        }
+    }
 }
 
 #[inline(always)]
@@ -19,14 +34,26 @@ pub(crate) fn before(a: (f32, u64), b: (f32, u64)) -> bool {
     a.0 < b.0 || (a.0 == b.0 && a.1 < b.1)
 }
 
-/// The up to [`BATCH`] nearest hits accepted so far, sorted by (t, key). Its `upper` bound only
-/// shrinks: a new hit must come before it, and the BVH prunes nodes beyond `upper.0`.
+/// The up to [`BATCH`] nearest hits accepted so far, sorted by (t, key), each with the
+/// transmittance in front of it. Its `upper` bound only shrinks: a new hit must come before it,
+/// and the BVH prunes nodes beyond `upper.0`.
+///
+/// The transmittances are the sequential product in sorted order, `T_{i+1} = T_i (1 − α_i)` from
+/// the carried-in `T_0`: the very product the weights w_i = T_i α_i of eq. surface-record need.
+/// Hits do not arrive in order (a wide BVH's traversal is only roughly front to back), so they
+/// are derived lazily: an insert shifts the hits behind it, marks the transmittances from there
+/// on stale, and multiplies a running product (in arrival order, O(1)); only when that product
+/// falls below [`T_MIN`] (or the farthest hit is evicted, or the batch is read) are the stale
+/// ones re-derived, front to back, and the ray cut at the first hit that drops the exact
+/// product below [`T_MIN`]. Invariant: every settled hit but the last leaves at least [`T_MIN`]
+/// behind it.
 pub(crate) struct HitBatch {
     hits: [Hit; BATCH],
     len: usize,
-    /// Transmittance behind all buffered hits, including what earlier batches absorbed. Kept by
-    /// multiplication so an insert costs O(1) until it falls below [`T_MIN`]; only then is the
-    /// exact prefix walked to find where the ray ends.
+    /// `hits[..settled]` have exact transmittances.
+    settled: usize,
+    /// Transmittance behind all buffered hits: the running product, exact when everything is
+    /// settled.
     behind: f32,
     /// The buffer ends at the hit that drops the transmittance below [`T_MIN`].
     cut: bool,
@@ -41,6 +68,7 @@ impl HitBatch {
         HitBatch {
             hits: [Hit::default(); BATCH],
             len: 0,
+            settled: 0,
             behind: carry,
             cut: false,
             // Key 0 is the smallest, so (t, key) < (t_max, 0) means t < t_max.
@@ -64,40 +92,23 @@ impl HitBatch {
     #[inline]
     pub fn insert(&mut self, hit: Hit) {
         debug_assert!(self.accepts(hit.t, hit.key));
+        let evict = self.len == BATCH;
+        if evict {
+            // The farthest hit leaves (the new one comes before it: it was accepted).
+            self.len -= 1;
+        }
         let mut p = self.len;
         while p > 0 && before((hit.t, hit.key), (self.hits[p - 1].t, self.hits[p - 1].key)) {
+            self.hits[p] = self.hits[p - 1];
             p -= 1;
         }
-        if self.len == BATCH {
-            // The farthest hit leaves: recompute rather than divide, to stay exact.
-            self.hits.copy_within(p..BATCH - 1, p + 1);
-            self.hits[p] = hit;
-            self.behind = self
-                .hits
-                .iter()
-                .fold(self.carry, |tr, h| tr * (1.0 - h.alpha));
-        } else {
-            self.hits.copy_within(p..self.len, p + 1);
-            self.hits[p] = hit;
-            self.len += 1;
-            self.behind *= 1.0 - hit.alpha;
-        }
-        // Evicting the hit that ended the ray can leave the rest above T_MIN again.
-        self.cut = false;
-        if self.behind < T_MIN {
-            // The first hit that drops the transmittance below T_MIN ends the ray: everything
-            // after it is discarded and nothing behind it is looked for.
-            let mut tr = self.carry;
-            for i in 0..self.len {
-                tr *= 1.0 - self.hits[i].alpha;
-                if tr < T_MIN {
-                    self.len = i + 1;
-                    self.cut = true;
-                    break;
-                }
-            }
-            // Exact now, whether or not the rounding of the running product was.
-            self.behind = tr;
+        self.hits[p] = hit;
+        self.len += 1;
+        self.settled = self.settled.min(p);
+        self.behind *= 1.0 - hit.alpha;
+        // An eviction takes a factor out of the running product; a cut may move earlier.
+        if evict || self.cut || self.behind < T_MIN {
+            self.settle();
         }
         if self.cut || self.len == BATCH {
             let last = self.hits[self.len - 1];
@@ -105,24 +116,59 @@ impl HitBatch {
         }
     }
 
-    /// The hits in order with their weights w = T·α (eq. surface-record).
+    /// Re-derives the stale transmittances front to back, and cuts the ray at the first hit that
+    /// drops the product below [`T_MIN`]: everything after it is discarded and nothing behind
+    /// it is looked for. Without such a hit, any earlier cut was the evicted farthest hit, and
+    /// the ray goes on.
+    #[inline]
+    fn settle(&mut self) {
+        let p = self.settled;
+        let mut tr = match p {
+            0 => self.carry,
+            _ => {
+                let h = &self.hits[p - 1];
+                h.front * (1.0 - h.alpha)
+            }
+        };
+        self.cut = false;
+        for i in p..self.len {
+            self.hits[i].front = tr;
+            tr *= 1.0 - self.hits[i].alpha;
+            if tr < T_MIN {
+                self.len = i + 1;
+                self.cut = true;
+                break;
+            }
+        }
+        self.settled = self.len;
+        self.behind = tr;
+    }
+
+    /// Settles the batch once the traversal is done: its hits and their weights are exact.
+    #[inline]
+    pub fn finish(&mut self) {
+        if self.settled < self.len {
+            self.settle();
+        }
+    }
+
+    /// The hits in order with their weights w = T·α (eq. surface-record). Call
+    /// [`HitBatch::finish`] first.
     #[inline]
     pub fn weighted(&self) -> impl Iterator<Item = (f32, &Hit)> {
-        self.hits[..self.len].iter().scan(self.carry, |tr, h| {
-            let w = *tr * h.alpha;
-            *tr *= 1.0 - h.alpha;
-            Some((w, h))
-        })
+        debug_assert_eq!(self.settled, self.len);
+        self.hits[..self.len].iter().map(|h| (h.front * h.alpha, h))
     }
 
     /// Whether this batch ends the ray: either the transmittance fell below [`T_MIN`] or the
-    /// buffer did not fill, so there is nothing more in range.
+    /// buffer did not fill, so there is nothing more in range. Call [`HitBatch::finish`] first.
     #[inline]
     pub fn finishes(&self) -> bool {
         self.cut || self.len < BATCH
     }
 
-    /// Where the next batch starts (exclusive) and the transmittance it starts behind.
+    /// Where the next batch starts (exclusive) and the transmittance it starts behind. Call
+    /// [`HitBatch::finish`] first.
     #[inline]
     pub fn resume(&self) -> ((f32, u64), f32) {
         let last = self.hits[self.len - 1];
@@ -135,23 +181,19 @@ mod tests {
     use super::*;
 
     fn hit(t: f32, key: u64, alpha: f32) -> Hit {
-        Hit {
-            t,
-            alpha,
-            key,
-            slot: 0,
-        }
+        Hit::new(t, alpha, key, 0)
     }
 
     #[test]
     fn keeps_the_nearest_sorted_and_bounds_by_the_last() {
         let mut b = HitBatch::new(1.0, f32::INFINITY);
         for i in (0..BATCH as u64 + 10).rev() {
-            let h = hit(i as f32 * 0.5, i, 0.1);
+            let h = hit(i as f32 * 0.5, i, 0.01);
             if b.accepts(h.t, h.key) {
                 b.insert(h);
             }
         }
+        b.finish();
         let ts: Vec<f32> = b.weighted().map(|(_, h)| h.t).collect();
         assert_eq!(ts.len(), BATCH);
         assert!(ts.windows(2).all(|w| w[0] < w[1]));
@@ -159,7 +201,7 @@ mod tests {
         assert!(!b.finishes());
         let (after, tr) = b.resume();
         assert_eq!(after, ((BATCH - 1) as f32 * 0.5, BATCH as u64 - 1));
-        assert!((tr - 0.9f32.powi(BATCH as i32)).abs() < 1e-6);
+        assert!((tr - 0.99f32.powi(BATCH as i32)).abs() < 1e-6);
     }
 
     #[test]
@@ -168,11 +210,81 @@ mod tests {
         for key in [5u64, 3, 9, 1, 7] {
             b.insert(hit(2.0, key, 0.95));
         }
+        b.finish();
         // 0.05³ = 1.25e-4 is not below T_MIN; 0.05⁴ is.
         let keys: Vec<u64> = b.weighted().map(|(_, h)| h.key).collect();
         assert_eq!(keys, vec![1, 3, 5, 7]);
         assert!(b.finishes());
         assert!(!b.accepts(2.0, 8));
         assert!(b.accepts(2.0, 6));
+    }
+
+    /// Against the definition: whatever order hits arrive in (shuffled, or nearly sorted as a
+    /// traversal yields them), the batch holds the sorted nearest hits up to BATCH or up to the
+    /// first that drops the transmittance below T_MIN, with the weights of the sequential
+    /// product in sorted order, bit for bit; and resumes behind the last of them.
+    #[test]
+    fn holds_the_sorted_prefix_whatever_the_arrival_order() {
+        use crate::scene::synthetic::SplitMix;
+        let mut rng = SplitMix(7);
+        let mut cuts = 0;
+        for case in 0..400 {
+            let n = 1 + (rng.range(0.0, 3.0 * BATCH as f32)) as usize;
+            let faint = case % 2 == 0;
+            let mut all: Vec<Hit> = (0..n)
+                .map(|i| {
+                    let alpha = if faint {
+                        rng.range(0.004, 0.1)
+                    } else {
+                        rng.range(0.004, 0.99)
+                    };
+                    // Some equal t, so the key decides.
+                    let t = (rng.range(0.0, 50.0) as u32) as f32 * 0.1;
+                    hit(t, i as u64, alpha)
+                })
+                .collect();
+            let carry = rng.range(0.01, 1.0);
+            // Arrival order: shuffled, or sorted with local swaps.
+            let mut arrival = all.clone();
+            if case % 3 == 0 {
+                arrival.sort_by(|a, b| a.t.total_cmp(&b.t).then(a.key.cmp(&b.key)));
+                for i in 1..n {
+                    if rng.range(0.0, 1.0) < 0.3 {
+                        arrival.swap(i - 1, i);
+                    }
+                }
+            } else {
+                for i in (1..n).rev() {
+                    let j = rng.range(0.0, i as f32 + 0.999) as usize;
+                    arrival.swap(i, j.min(i));
+                }
+            }
+            let mut b = HitBatch::new(carry, f32::INFINITY);
+            for h in &arrival {
+                if b.accepts(h.t, h.key) {
+                    b.insert(*h);
+                }
+            }
+            b.finish();
+            // The definition.
+            all.sort_by(|a, b| a.t.total_cmp(&b.t).then(a.key.cmp(&b.key)));
+            let mut want = Vec::new();
+            let mut tr = carry;
+            let mut cut = false;
+            for h in all.iter().take(BATCH) {
+                want.push((tr * h.alpha, h.key));
+                tr *= 1.0 - h.alpha;
+                if tr < T_MIN {
+                    cut = true;
+                    break;
+                }
+            }
+            cuts += cut as usize;
+            let got: Vec<(f32, u64)> = b.weighted().map(|(w, h)| (w, h.key)).collect();
+            assert_eq!(got, want, "case {case}");
+            assert_eq!(b.finishes(), cut || want.len() < BATCH, "case {case}");
+            assert_eq!(b.resume().1, tr, "case {case}");
+        }
+        assert!(cuts > 50, "cases that reach T_MIN: {cuts}");
     }
 }

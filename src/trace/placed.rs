@@ -1,12 +1,13 @@
 //! The top level: components placed by rigid transforms, and the two ray queries.
 
 use super::batch::{before, Hit, HitBatch};
+use super::node::{lower_clip, node_hits, NodeRay};
 use super::record::{SurfaceRecord, WeightedHit};
 use super::scene::TraceScene;
 use super::T_MIN;
 use crate::scene::Rigid;
 use glam::{Mat3, Vec3};
-use obvhs::ray::{Ray, RayHit};
+use obvhs::ray::Ray;
 use obvhs_glam::UVec2;
 
 /// One component placed in the world.
@@ -56,6 +57,8 @@ pub struct RayStats {
     pub hits: u64,
     /// Hits composited (a composite's `SurfaceRecord::hits`).
     pub composited: u64,
+    /// BVH nodes whose children were tested against the ray.
+    pub nodes: u64,
     /// BVH traversals: a composite traverses once per batch of [`super::BATCH`] hits, and each
     /// component whose world bounds the ray meets counts once.
     pub traversals: u64,
@@ -65,12 +68,15 @@ pub struct RayStats {
 /// [`RayStats`] counts everything. One traversal serves both, so what is counted is exactly
 /// what the fast path does.
 pub(super) trait Tally {
+    fn node(&mut self);
     fn leaf_test(&mut self);
     fn hit(&mut self);
     fn traversal(&mut self);
 }
 
 impl Tally for () {
+    #[inline(always)]
+    fn node(&mut self) {}
     #[inline(always)]
     fn leaf_test(&mut self) {}
     #[inline(always)]
@@ -80,6 +86,10 @@ impl Tally for () {
 }
 
 impl Tally for RayStats {
+    #[inline(always)]
+    fn node(&mut self) {
+        self.nodes += 1;
+    }
     #[inline(always)]
     fn leaf_test(&mut self) {
         self.leaf_tests += 1;
@@ -240,33 +250,38 @@ impl<'a> Placed<'a> {
                 tally.traversal();
                 let (lo, ld) = inst.ray_to_local(o, d);
                 let key_base = (c as u64) << 32;
-                let mut unused = RayHit::none();
-                // obvhs shrinks the ray's tmax to whatever the closure returns below it: return
-                // the batch's bound whenever it tightens, +∞ otherwise.
-                bvh.ray_traverse(
-                    obvhs_ray(lo, ld, after.0, batch.bound()),
-                    &mut unused,
-                    |_, slot| {
-                        tally.leaf_test();
-                        let surfel = &blas.hit[slot];
-                        let Some((t, alpha)) = surfel.hit(lo, ld, after.0, batch.bound()) else {
-                            return f32::INFINITY;
-                        };
-                        let key = key_base | surfel.index as u64;
-                        if !(before(after, (t, key)) && batch.accepts(t, key)) {
-                            return f32::INFINITY;
-                        }
-                        tally.hit();
-                        batch.insert(Hit {
-                            t,
-                            alpha,
-                            key,
-                            slot: slot as u32,
-                        });
-                        batch.bound()
+                let ray = obvhs_ray(lo, ld, after.0, batch.bound());
+                let node_ray = NodeRay::new(&ray);
+                // Nodes wholly before the last composited hit hold nothing this batch can take.
+                let t_lo = lower_clip(after.0);
+                // obvhs's traversal loop (its `traverse!` macro), with a node test that also
+                // clips at `t_lo` (see `super::node`) and the batch's bound as the far clip,
+                // which shrinks as the batch fills.
+                let mut state = bvh.new_traversal(ray.direction);
+                let mut node;
+                obvhs::traverse!(
+                    bvh,
+                    node,
+                    state,
+                    {
+                        tally.node();
+                        node_hits(node, &node_ray, state.oct_inv4, t_lo, batch.bound())
                     },
+                    {
+                        tally.leaf_test();
+                        let slot = state.primitive_id as usize;
+                        let surfel = &blas.hit[slot];
+                        if let Some((t, alpha)) = surfel.hit(lo, ld, after.0, batch.bound()) {
+                            let key = key_base | surfel.index as u64;
+                            if before(after, (t, key)) && batch.accepts(t, key) {
+                                tally.hit();
+                                batch.insert(Hit::new(t, alpha, key, slot as u32));
+                            }
+                        }
+                    }
                 );
             }
+            batch.finish();
             for (w, h) in batch.weighted() {
                 visit(w, (h.key >> 32) as usize, h);
             }
@@ -319,6 +334,8 @@ impl<'a> Placed<'a> {
             tally.traversal();
             let (lo, ld) = inst.ray_to_local(o, d);
             let ray = obvhs_ray(lo, ld, t_min, t_max);
+            let node_ray = NodeRay::new(&ray);
+            let t_lo = lower_clip(t_min);
             // obvhs's own traversal loop (its `traverse!` macro, which its `ray_traverse` is
             // built on), expanded here so that the moment the ray is blocked the function
             // returns from inside it. (A `break` there, which the macro's doc suggests, only
@@ -331,7 +348,10 @@ impl<'a> Placed<'a> {
                 bvh,
                 node,
                 state,
-                node.intersect_ray(&ray, state.oct_inv4),
+                {
+                    tally.node();
+                    node_hits(node, &node_ray, state.oct_inv4, t_lo, t_max)
+                },
                 {
                     tally.leaf_test();
                     if let Some((t, a)) =
