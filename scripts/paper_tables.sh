@@ -7,18 +7,19 @@
 #   Table 4  stage 3's switches on bedroom (invert with the naive estimator, fixed 8 spp,
 #            8 -> 16 spp), on the full run's refined geometry.
 # Every step is skipped when its output exists and resumes from its checkpoint when it was
-# killed, so the script can be stopped and run again. Each evaluation's eval.json and eval.md
-# are kept in <out>/results/<preset>[/<variant>] (a few kB), and a row whose results are there
-# is not run again: with --prune, a preset's dataset and work folders (~GBs) are deleted as soon
-# as every requested table has what it needs from them, so the tables can be measured over
-# several sittings without keeping the big outputs. Writes <out>/tables.md (and prints it);
-# with --readme, also replaces the block between the README's `paper-tables` markers.
+# killed, so the script can be stopped and run again. Each evaluation's eval.json and eval.md,
+# and each stage's report.json, are kept in <out>/results/<preset>[/<variant>] (a few kB), and a
+# row whose results are there is not run again: with --prune, a preset's dataset and work
+# folders (~GBs) are deleted as soon as every requested table has what it needs from them, so
+# the tables can be measured over several sittings without keeping the big outputs. Writes
+# <out>/tables.md (and prints it); with --readme, also replaces the block between the README's
+# `paper-tables` markers.
 #
 # Usage: bash scripts/paper_tables.sh [--out data/paper] [--presets "bedroom playroom livingroom kitchen"]
 #            [--tables "1 3 4"] [--preset fast|paper] [--test-views 8] [--prune] [--readme]
 # Cost on this machine (2 cores), fast preset, per preset: generation ~15 min, stage 1 ~25-45
 # min, stage 2 ~20 min; Tables 3 and 4 add 8 inverse renderings and evaluations of bedroom.
-# Hours in all: run it overnight.
+# One preset's Table 1 row took 1.5-2 h here (bedroom, playroom). Hours in all: run it overnight.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=data/paper
@@ -37,7 +38,7 @@ while [ $# -gt 0 ]; do
     --test-views) test_views=$2; shift 2 ;;
     --readme) readme=1; shift ;;
     --prune) prune=1; shift ;;
-    -h | --help) sed -n '2,23p' "$0"; exit 0 ;;
+    -h | --help) sed -n '2,22p' "$0"; exit 0 ;;
     *) echo "paper_tables.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -59,10 +60,16 @@ dataset() {
   echo "$ds"
 }
 
-# Keeps an evaluation's small outputs: $1 the work folder, $2 the results folder.
+# Keeps an evaluation's small outputs, and each stage's report (the figures issues and notes
+# quote: poses, leaks, recovered albedo), as stage1.json, refine.json, invert.json: $1 the work
+# folder, $2 the results folder.
 keep() {
   mkdir -p "$2"
   cp -p "$1/eval/eval.json" "$1/eval/eval.md" "$2/"
+  local f
+  for f in report.json:stage1.json refine/report.json:refine.json invert/report.json:invert.json; do
+    if [ -f "$1/${f%%:*}" ]; then cp -p "$1/${f%%:*}" "$2/${f##*:}"; fi
+  done
 }
 
 # Stages 1-3 and the evaluation of one preset: the full run every table starts from. Skipped
@@ -146,8 +153,12 @@ def fig(row, key="raw"):
     m = row[key]
     return f"{m['psnr_srgb_db']:.2f} | {m['ssim_srgb']:.3f}"
 
+earlier = [p for p in ["bedroom", "playroom", "livingroom", "kitchen"]
+           if p not in presets and os.path.isfile(os.path.join(out, "results", p, "eval.json"))]
 print(f"Measured by `bash scripts/paper_tables.sh --tables \"{' '.join(tables)}\" --presets \"{' '.join(presets)}\" "
-      f"--preset {stage_preset} --test-views {test_views}` (PSNR dB / SSIM on 8-bit sRGB, 32 spp, denoised; \"rescaled\": after "
+      f"--preset {stage_preset} --test-views {test_views}`"
+      + (f" (rows {', '.join(earlier)}: earlier sittings of the same command, with `--presets` naming them)" if earlier else "")
+      + " (PSNR dB / SSIM on 8-bit sRGB, 32 spp, denoised; \"rescaled\": after "
       "the per-channel median albedo rescale; the test arrangement under the environments no training "
       "state saw).\n")
 if "1" in tables:
