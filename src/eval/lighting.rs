@@ -29,6 +29,106 @@ pub struct EnvFigures {
     pub power_error: f64,
     /// Texels compared: the recovered map's width × height.
     pub texels: usize,
+    /// Solid-angle-weighted RMS of ln((s'·R + ε) / (T + ε)) over texels, on luminance, with s'
+    /// the log-space fit (the weighted mean log ratio) and ε = 1 % of the truth's mean
+    /// luminance: the typical factor by which a direction's brightness is off, exp(·) − 1 as a
+    /// relative error. Judges the whole sphere where `psnr_db` judges the sun.
+    pub log_rmse: f64,
+    /// `log_rmse` of the best uniform map: the bar a recovery has to clear.
+    pub log_rmse_uniform: f64,
+    /// Relative L1 error of the diffuse irradiance E(n) = ∫ L(ω) max(0, n·ω) dω over every
+    /// normal n on the sphere, after a least-squares gain: what a Lambertian surface lit by the
+    /// map sees, so it weighs the sun by the light it casts, not by its texel value.
+    pub irradiance_error: f64,
+    /// `irradiance_error` of a uniform map (constant irradiance): the bar to clear.
+    pub irradiance_error_uniform: f64,
+}
+
+/// Map size on which irradiance is integrated, and the grid of normals it is evaluated at
+/// (texel centres of a lat-long map of half that size): diffuse irradiance is a low-pass
+/// function of the map (a cosine lobe), so a 64 × 32 area average loses nothing visible in it.
+const IRRADIANCE_MAP: (usize, usize) = (64, 32);
+const IRRADIANCE_NORMALS: (usize, usize) = (32, 16);
+
+/// Irradiance E(n) per channel at the texel centres of a `IRRADIANCE_NORMALS` grid, from the
+/// map area-averaged to `IRRADIANCE_MAP`; with each normal's solid angle.
+fn irradiance(env: &Environment) -> Vec<([f64; 3], f64)> {
+    let (mw, mh) = IRRADIANCE_MAP;
+    let map = env.resample(mw, mh);
+    let texel_dir = |x: usize, y: usize, w: usize, h: usize| {
+        let d = crate::shade::envmap::uv_to_direction([
+            (x as f32 + 0.5) / w as f32,
+            (y as f32 + 0.5) / h as f32,
+        ]);
+        [d.x as f64, d.y as f64, d.z as f64]
+    };
+    let lights: Vec<([f64; 3], [f64; 3])> = (0..mh)
+        .flat_map(|y| (0..mw).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let o = map.texel_solid_angle(y);
+            let l = map.pixels[y * mw + x];
+            (texel_dir(x, y, mw, mh), [0, 1, 2].map(|c| l[c] as f64 * o))
+        })
+        .collect();
+    let (nw, nh) = IRRADIANCE_NORMALS;
+    let grid = Environment::constant("n", nw, nh, [0.0; 3]);
+    (0..nh)
+        .flat_map(|y| (0..nw).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let n = texel_dir(x, y, nw, nh);
+            let mut e = [0.0f64; 3];
+            for (d, l) in &lights {
+                let c = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+                if c > 0.0 {
+                    for k in 0..3 {
+                        e[k] += l[k] * c;
+                    }
+                }
+            }
+            (e, grid.texel_solid_angle(y))
+        })
+        .collect()
+}
+
+/// Σ_n Ω_n Σ_c |g·a − b| / Σ_n Ω_n Σ_c b with g the least-squares gain of a onto b.
+fn fitted_relative_l1(a: &[([f64; 3], f64)], b: &[([f64; 3], f64)]) -> f64 {
+    let (mut ab, mut aa) = (0.0, 0.0);
+    for ((x, o), (y, _)) in a.iter().zip(b) {
+        for c in 0..3 {
+            ab += o * x[c] * y[c];
+            aa += o * x[c] * x[c];
+        }
+    }
+    let g = if aa > 0.0 { ab / aa } else { 0.0 };
+    let (mut num, mut den) = (0.0, 0.0);
+    for ((x, o), (y, _)) in a.iter().zip(b) {
+        for c in 0..3 {
+            num += o * (g * x[c] - y[c]).abs();
+            den += o * y[c];
+        }
+    }
+    num / den
+}
+
+/// Solid-angle-weighted RMS of ln(s'·r + ε) − ln(t + ε) with the best s' (see
+/// [`EnvFigures::log_rmse`]); `rec` and `truth` are luminances on the same grid, `omega` the
+/// texels' solid angles. The best s' for a fixed ε has no closed form; the weighted mean of
+/// ln(t + ε) − ln(r + ε) (exact when ε = 0) is used, then the RMS taken with ε in place.
+fn log_rmse(rec: &[f64], truth: &[f64], omega: &[f64]) -> f64 {
+    let osum: f64 = omega.iter().sum();
+    let mean_t = truth.iter().zip(omega).map(|(t, o)| t * o).sum::<f64>() / osum;
+    let eps = (0.01 * mean_t).max(f64::MIN_POSITIVE);
+    let mean_r = rec.iter().zip(omega).map(|(r, o)| r * o).sum::<f64>() / osum;
+    // Bring R to the truth's mean first so ε means the same on both sides, then fit in log.
+    let pre = if mean_r > 0.0 { mean_t / mean_r } else { 1.0 };
+    let diff = |s: f64| {
+        rec.iter()
+            .zip(truth)
+            .map(move |(r, t)| (s * pre * r + eps).ln() - (t + eps).ln())
+    };
+    let offset = diff(1.0).zip(omega).map(|(d, o)| d * o).sum::<f64>() / osum;
+    let s = (-offset).exp();
+    (diff(s).zip(omega).map(|(d, o)| d * d * o).sum::<f64>() / osum).sqrt()
 }
 
 /// Area-averages `truth` onto a `width` × `height` lat-long grid: each target texel is the
@@ -63,6 +163,12 @@ pub fn luminous_power(env: &Environment) -> f64 {
 /// - MSE = Σ Ω_i |s·R_i − T_i|² / (3 Σ Ω_i) and `psnr_db` = 10 log10(peak² / MSE) with peak =
 ///   max over texels and channels of T. HDR maps have no natural peak; the truth's brightest
 ///   texel at the compared resolution makes the figure independent of the truth's exposure.
+///   With a sun in the truth, the sun is both the peak and nearly all of the MSE, so this figure
+///   says little more than whether the sun was recovered: a recovery without it scores
+///   10 log10(12π / Ω_sun) whatever the rest of its sky is (measured: the same 47.81 dB on two
+///   scenes). `log_rmse` and `irradiance_error` judge the rest.
+/// - `log_rmse`, `irradiance_error` and their uniform-map bars: see [`EnvFigures`] and
+///   `docs/lighting-metrics.md`.
 /// - `power_error` = (P_R − P_T) / P_T with P = ∫ luminance dΩ ([`luminous_power`]), of R and
 ///   of the truth as given (before the fit; resampling keeps P).
 ///
@@ -104,11 +210,30 @@ pub fn compare_environments(recovered: &Environment, truth: &Environment) -> Env
         .flatten()
         .fold(f64::NEG_INFINITY, |m, &v| m.max(v as f64));
     let p_t = luminous_power(truth);
+    let luma = |e: &Environment| -> Vec<f64> {
+        e.pixels
+            .iter()
+            .map(|p| (0..3).map(|c| LUMINANCE[c] * p[c] as f64).sum())
+            .collect()
+    };
+    let omega: Vec<f64> = (0..recovered.height)
+        .flat_map(|y| std::iter::repeat_n(recovered.texel_solid_angle(y), w))
+        .collect();
+    let (lr, lt) = (luma(recovered), luma(&t));
+    let e_t = irradiance(&t);
+    // The best uniform map has the truth's mean colour; its irradiance is that colour times π
+    // everywhere (only its colour matters: the gain is fitted).
+    let mean_colour = truth.integral();
+    let e_uniform: Vec<_> = e_t.iter().map(|&(_, o)| (mean_colour, o)).collect();
     EnvFigures {
         psnr_db: 10.0 * (peak * peak / mse).log10(),
         scale,
         power_error: (luminous_power(recovered) - p_t) / p_t,
         texels: recovered.width * recovered.height,
+        log_rmse: log_rmse(&lr, &lt, &omega),
+        log_rmse_uniform: log_rmse(&vec![1.0; lt.len()], &lt, &omega),
+        irradiance_error: fitted_relative_l1(&irradiance(recovered), &e_t),
+        irradiance_error_uniform: fitted_relative_l1(&e_uniform, &e_t),
     }
 }
 
@@ -279,6 +404,88 @@ mod tests {
         assert!((f.scale - 2.0).abs() < 1e-6, "{f:?}");
         assert!(f.psnr_db > 100.0, "{f:?}");
         assert!((f.power_error + 0.5).abs() < 1e-6, "{f:?}");
+    }
+
+    /// A sky (brighter towards the zenith, bluish) with, optionally, a sun: one texel of
+    /// 20,000 × the sky at (x, y), as an HDRI's sun is.
+    fn sky(w: usize, h: usize, sun: Option<(usize, usize)>) -> Environment {
+        let mut px: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| {
+                let v = 1.0 - (i / w) as f32 / h as f32;
+                [0.3 + 0.5 * v, 0.4 + 0.6 * v, 0.6 + 0.9 * v]
+            })
+            .collect();
+        if let Some((x, y)) = sun {
+            px[y * w + x] = [20_000.0, 19_000.0, 17_000.0];
+        }
+        Environment::new("sky", w, h, px)
+    }
+
+    #[test]
+    fn the_new_figures_are_zero_for_a_scaled_copy() {
+        let truth = sky(256, 128, Some((40, 30)));
+        let mut rec = truth.clone();
+        for v in rec.pixels.iter_mut().flatten() {
+            *v *= 7.0;
+        }
+        let f = compare_environments(&rec, &truth);
+        // f32 rounding of 7·T, then f64 sums over 32k texels: ~1e-7 relative.
+        assert!(f.log_rmse < 1e-5, "{f:?}");
+        assert!(f.irradiance_error < 1e-5, "{f:?}");
+        assert!(
+            f.log_rmse_uniform > 0.1 && f.irradiance_error_uniform > 0.1,
+            "{f:?}"
+        );
+    }
+
+    #[test]
+    fn a_uniform_map_has_irradiance_pi_everywhere() {
+        let e = irradiance(&Environment::constant("c", 256, 128, [2.0, 1.0, 0.5]));
+        assert_eq!(e.len(), IRRADIANCE_NORMALS.0 * IRRADIANCE_NORMALS.1);
+        let pi = std::f64::consts::PI;
+        for (v, _) in &e {
+            // Σ Ω_i max(0, n·ω_i) over a 64 × 32 map is a midpoint rule for the cosine lobe:
+            // within 0.5 % of π at every normal (measured worst 0.06 %).
+            for (c, want) in [2.0 * pi, pi, 0.5 * pi].iter().enumerate() {
+                assert!((v[c] / want - 1.0).abs() < 5e-3, "{v:?}");
+            }
+        }
+        // The normals' solid angles tile the sphere.
+        let total: f64 = e.iter().map(|(_, o)| o).sum();
+        assert!((total - 4.0 * pi).abs() < 1e-9);
+    }
+
+    /// Why the figures exist: two recoveries that both miss the sun, one with the truth's sky
+    /// and one with a sky upside down, score the same PSNR (the missing sun is all of it), while
+    /// the log error and the irradiance error tell them apart. A recovery with the sun in the
+    /// right place beats the uniform bar; with it on the other side of the sky it does not.
+    #[test]
+    fn psnr_sees_only_the_sun_and_the_new_figures_see_the_rest() {
+        let (w, h) = (256, 128);
+        let truth = sky(w, h, Some((40, 30)));
+        let right_sky = sky(w, h, None);
+        let mut wrong_sky = right_sky.clone();
+        wrong_sky.pixels.reverse();
+        let a = compare_environments(&right_sky, &truth);
+        let b = compare_environments(&wrong_sky, &truth);
+        assert!((a.psnr_db - b.psnr_db).abs() < 0.1, "{a:?} {b:?}");
+        // The missing sun alone: one texel off by ln(20,000 / 1.3) ≈ 9.6 over a share
+        // Ω_sun / 4π ≈ 3e-5 of the sphere gives an RMS of ~0.055 (measured 0.058); the upside-down
+        // sky is off by up to ln 2.4 everywhere (measured 0.38, twice the uniform bar's 0.20).
+        assert!(a.log_rmse < 0.1 && b.log_rmse > 0.3, "{a:?} {b:?}");
+        assert!(b.log_rmse > b.log_rmse_uniform, "{b:?}");
+        // The sun casts ~70 % of the irradiance, so neither sky is close; the right one is
+        // nearer than the uniform bar (measured 0.47 against 0.54), the upside-down one not (0.60).
+        assert!(a.irradiance_error < a.irradiance_error_uniform, "{a:?}");
+        assert!(b.irradiance_error > b.irradiance_error_uniform, "{b:?}");
+
+        let sun_right = compare_environments(&truth, &sky(w, h, Some((40, 30))));
+        let sun_opposite = compare_environments(&sky(w, h, Some((168, 97))), &truth);
+        assert!(sun_right.irradiance_error < 1e-9, "{sun_right:?}");
+        assert!(
+            sun_opposite.irradiance_error > sun_opposite.irradiance_error_uniform,
+            "{sun_opposite:?}"
+        );
     }
 
     #[test]
