@@ -51,6 +51,39 @@ pub(super) fn lower_clip(t: f32) -> f32 {
     t - 1e-6 * t.abs()
 }
 
+/// Traverses `$bvh` (an obvhs `CwBvh`) along the local ray `$o + t $d` for `t_min < t`, running
+/// `$leaf` with `$prim` bound to each primitive (leaf slot) whose box the ray enters: obvhs's own
+/// traversal loop, its `traverse!` macro, with [`node_hits`] as the node test, clipped below at
+/// [`lower_clip`]`($t_min)` and above at `$t_far`, an expression evaluated at every node so that a
+/// far bound that shrinks while the traversal runs (a filling batch) prunes at once. `$tally`
+/// (a `super::Tally`) counts the nodes and leaf tests. A macro, not a function taking a closure:
+/// `$leaf` may `return` from the enclosing function (a blocked visibility ray) and borrows what
+/// `$t_far` reads. One copy for the composite's and the visibility ray's traversals.
+macro_rules! traverse_clipped {
+    ($bvh:expr, $o:expr, $d:expr, $t_min:expr, $t_far:expr, $tally:expr, |$prim:ident| $leaf:block) => {{
+        let ray = obvhs::ray::Ray::new($o.to_array().into(), $d.to_array().into(), $t_min, $t_far);
+        let node_ray = $crate::trace::node::NodeRay::new(&ray);
+        let t_lo = $crate::trace::node::lower_clip($t_min);
+        let mut state = $bvh.new_traversal(ray.direction);
+        let mut node;
+        obvhs::traverse!(
+            $bvh,
+            node,
+            state,
+            {
+                $tally.node();
+                $crate::trace::node::node_hits(node, &node_ray, state.oct_inv4, t_lo, $t_far)
+            },
+            {
+                $tally.leaf_test();
+                let $prim = state.primitive_id as usize;
+                $leaf
+            }
+        );
+    }};
+}
+pub(super) use traverse_clipped;
+
 /// The quantised planes of children `4i..4i+4` along one axis.
 #[inline(always)]
 fn quads(q: &[u8; 8], i: usize) -> Vec4 {

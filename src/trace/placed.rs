@@ -1,13 +1,12 @@
 //! The top level: components placed by rigid transforms, and the two ray queries.
 
 use super::batch::{before, Hit, HitBatch};
-use super::node::{lower_clip, node_hits, NodeRay};
+use super::node::traverse_clipped;
 use super::record::{SurfaceRecord, WeightedHit};
 use super::scene::TraceScene;
 use super::T_MIN;
 use crate::scene::Rigid;
 use glam::{Mat3, Vec3};
-use obvhs::ray::Ray;
 use obvhs_glam::UVec2;
 
 /// One component placed in the world.
@@ -38,10 +37,6 @@ fn ray_box(o: Vec3, inv_d: Vec3, (lo, hi): (Vec3, Vec3), t_lo: f32, t_hi: f32) -
     let near = a.min(b).max_element().max(t_lo);
     let far = a.max(b).min_element().min(t_hi);
     near <= far
-}
-
-fn obvhs_ray(o: Vec3, d: Vec3, t_lo: f32, t_hi: f32) -> Ray {
-    Ray::new(o.to_array().into(), d.to_array().into(), t_lo, t_hi)
 }
 
 /// What rays cost, summed over the rays traced with [`Placed::composite_stats`] or
@@ -250,36 +245,18 @@ impl<'a> Placed<'a> {
                 tally.traversal();
                 let (lo, ld) = inst.ray_to_local(o, d);
                 let key_base = (c as u64) << 32;
-                let ray = obvhs_ray(lo, ld, after.0, batch.bound());
-                let node_ray = NodeRay::new(&ray);
-                // Nodes wholly before the last composited hit hold nothing this batch can take.
-                let t_lo = lower_clip(after.0);
-                // obvhs's traversal loop (its `traverse!` macro), with a node test that also
-                // clips at `t_lo` (see `super::node`) and the batch's bound as the far clip,
-                // which shrinks as the batch fills.
-                let mut state = bvh.new_traversal(ray.direction);
-                let mut node;
-                obvhs::traverse!(
-                    bvh,
-                    node,
-                    state,
-                    {
-                        tally.node();
-                        node_hits(node, &node_ray, state.oct_inv4, t_lo, batch.bound())
-                    },
-                    {
-                        tally.leaf_test();
-                        let slot = state.primitive_id as usize;
-                        let surfel = &blas.hit[slot];
-                        if let Some((t, alpha)) = surfel.hit(lo, ld, after.0, batch.bound()) {
-                            let key = key_base | surfel.index as u64;
-                            if before(after, (t, key)) && batch.accepts(t, key) {
-                                tally.hit();
-                                batch.insert(Hit::new(t, alpha, key, slot as u32));
-                            }
+                // Nodes wholly before the last composited hit hold nothing this batch can take;
+                // the batch's bound is the far clip, which shrinks as the batch fills.
+                traverse_clipped!(bvh, lo, ld, after.0, batch.bound(), tally, |slot| {
+                    let surfel = &blas.hit[slot];
+                    if let Some((t, alpha)) = surfel.hit(lo, ld, after.0, batch.bound()) {
+                        let key = key_base | surfel.index as u64;
+                        if before(after, (t, key)) && batch.accepts(t, key) {
+                            tally.hit();
+                            batch.insert(Hit::new(t, alpha, key, slot as u32));
                         }
                     }
-                );
+                });
             }
             batch.finish();
             for (w, h) in batch.weighted() {
@@ -333,40 +310,21 @@ impl<'a> Placed<'a> {
             }
             tally.traversal();
             let (lo, ld) = inst.ray_to_local(o, d);
-            let ray = obvhs_ray(lo, ld, t_min, t_max);
-            let node_ray = NodeRay::new(&ray);
-            let t_lo = lower_clip(t_min);
-            // obvhs's own traversal loop (its `traverse!` macro, which its `ray_traverse` is
-            // built on), expanded here so that the moment the ray is blocked the function
-            // returns from inside it. (A `break` there, which the macro's doc suggests, only
-            // leaves its per-leaf loop: the traversal goes on.) The ray's tmax never shrinks: a
-            // visibility ray needs every hit, not the closest. Its yielding traversal, used
-            // before, visits the same hits in the same order but returns to the caller at each.
-            let mut state = bvh.new_traversal(ray.direction);
-            let mut node;
-            obvhs::traverse!(
-                bvh,
-                node,
-                state,
-                {
-                    tally.node();
-                    node_hits(node, &node_ray, state.oct_inv4, t_lo, t_max)
-                },
-                {
-                    tally.leaf_test();
-                    if let Some((t, a)) =
-                        blas.hit[state.primitive_id as usize].hit(lo, ld, t_min, t_max)
-                    {
-                        if t > t_min && t < t_max {
-                            tally.hit();
-                            tr *= 1.0 - a;
-                            if tr < T_MIN {
-                                return 0.0;
-                            }
+            // Returns from inside the traversal the moment the ray is blocked. (A `break` there,
+            // which obvhs's `traverse!` doc suggests, only leaves its per-leaf loop: the
+            // traversal goes on.) The far clip never shrinks: a visibility ray needs every hit,
+            // not the closest.
+            traverse_clipped!(bvh, lo, ld, t_min, t_max, tally, |slot| {
+                if let Some((t, a)) = blas.hit[slot].hit(lo, ld, t_min, t_max) {
+                    if t > t_min && t < t_max {
+                        tally.hit();
+                        tr *= 1.0 - a;
+                        if tr < T_MIN {
+                            return 0.0;
                         }
                     }
                 }
-            );
+            });
         }
         tr
     }
