@@ -8,14 +8,15 @@
 #            8 -> 16 spp), on the full run's refined geometry.
 # Every step is skipped when its output exists and resumes from its checkpoint when it was
 # killed, so the script can be stopped and run again. Each evaluation's eval.json and eval.md,
-# and each stage's report.json, are kept in <out>/results/<preset>[/<variant>] (a few kB), and a
-# row whose results are there is not run again: with --prune, a preset's dataset and work
+# and each stage's report.json, are kept in <results>/<preset>[/<variant>] (a few kB; by default
+# docs/paper-results, which is committed: the tables are measured over several sittings on
+# machines that keep no data between them), and a row whose results are there is not run again: with --prune, a preset's dataset and work
 # folders (~GBs) are deleted as soon as every requested table has what it needs from them, so
 # the tables can be measured over several sittings without keeping the big outputs. Writes
 # <out>/tables.md (and prints it); with --readme, also replaces the block between the README's
 # `paper-tables` markers.
 #
-# Usage: bash scripts/paper_tables.sh [--out data/paper] [--presets "bedroom playroom livingroom kitchen"]
+# Usage: bash scripts/paper_tables.sh [--out data/paper] [--results docs/paper-results] [--presets "bedroom playroom livingroom kitchen"]
 #            [--tables "1 3 4"] [--preset fast|paper] [--test-views 8] [--prune] [--readme]
 # Cost on this machine (2 cores), fast preset, per preset: generation ~15 min, stage 1 ~25-45
 # min, stage 2 ~20 min; Tables 3 and 4 add 8 inverse renderings and evaluations of bedroom.
@@ -23,6 +24,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=data/paper
+res=docs/paper-results
 presets="bedroom playroom livingroom kitchen"
 tables="1 3 4"
 stage_preset=fast
@@ -32,13 +34,14 @@ prune=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) out=$2; shift 2 ;;
+    --results) res=$2; shift 2 ;;
     --presets) presets=$2; shift 2 ;;
     --tables) tables=$2; shift 2 ;;
     --preset) stage_preset=$2; shift 2 ;;
     --test-views) test_views=$2; shift 2 ;;
     --readme) readme=1; shift ;;
     --prune) prune=1; shift ;;
-    -h | --help) sed -n '2,22p' "$0"; exit 0 ;;
+    -h | --help) sed -n '2,24p' "$0"; exit 0 ;;
     *) echo "paper_tables.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -76,12 +79,12 @@ keep() {
 # when its results are kept, unless $2 = need (a variant is about to start from its outputs).
 full_run() {
   local ds
-  if [ -f "$out/results/$1/eval.json" ] && [ "${2:-}" != need ]; then return; fi
-  if [ -f "$out/results/$1/eval.json" ] && [ -f "$out/$1/work/refined.glb" ]; then return; fi
+  if [ -f "$res/$1/eval.json" ] && [ "${2:-}" != need ]; then return; fi
+  if [ -f "$res/$1/eval.json" ] && [ -f "$out/$1/work/refined.glb" ]; then return; fi
   ds=$(dataset "$1")
   say "$1: lightfuse run ($stage_preset)"
   "$lf" run "$ds" -o "$out/$1/work" --preset "$stage_preset" >&2
-  keep "$out/$1/work" "$out/results/$1"
+  keep "$out/$1/work" "$res/$1"
 }
 
 # Deletes a preset's dataset and work folders (--prune) once nothing requested still needs them.
@@ -91,10 +94,10 @@ prune_preset() {
     local v
     for v in t3-no-coverage t3-no-scale t3-no-depth t3-no-normal t4-naive t4-fixed8 t4-max16; do
       case "$v" in t3-*) [[ " $tables " == *" 3 "* ]] || continue ;; t4-*) [[ " $tables " == *" 4 "* ]] || continue ;; esac
-      [ -f "$out/results/bedroom/$v/eval.json" ] || return 0
+      [ -f "$res/bedroom/$v/eval.json" ] || return 0
     done
   fi
-  say "$1: results kept in $out/results/$1; deleting its dataset and work folders (--prune)"
+  say "$1: results kept in $res/$1; deleting its dataset and work folders (--prune)"
   rm -rf "${out:?}/$1/dataset" "${out:?}/$1/work" "${out:?}/$1"/t[34]-*
 }
 
@@ -104,7 +107,7 @@ prune_preset() {
 variant() {
   local name=$1 files=$2 refine_flags=$3 invert_flags=$4
   local ds=$out/bedroom/dataset base=$out/bedroom/work w=$out/bedroom/$name
-  [ -f "$out/results/bedroom/$name/eval.json" ] && return
+  [ -f "$res/bedroom/$name/eval.json" ] && return
   full_run bedroom need
   mkdir -p "$w"
   for f in $files; do [ -f "$w/$f" ] || cp -p "$base/$f" "$w/$f"; done
@@ -122,7 +125,7 @@ variant() {
     say "bedroom/$name: lightfuse evaluate"
     "$lf" evaluate "$ds" "$w" --no-images >&2
   fi
-  keep "$w" "$out/results/bedroom/$name"
+  keep "$w" "$res/bedroom/$name"
 }
 
 for t in $tables; do
@@ -140,24 +143,36 @@ done
 [[ " $presets $tables " == *" bedroom "* || " $tables " == *" 3 "* || " $tables " == *" 4 "* ]] && prune_preset bedroom
 
 # The Markdown: every figure read from the eval.json files just made.
-"$py" - "$out" "$tables" "$presets" "$stage_preset" "$test_views" > "$out/tables.md" <<'PY'
+mkdir -p "$out"
+"$py" - "$res" "$tables" "$presets" "$stage_preset" "$test_views" > "$out/tables.md" <<'PY'
 import json, os, sys
-out, tables, presets, stage_preset, test_views = sys.argv[1], sys.argv[2].split(), sys.argv[3].split(), sys.argv[4], sys.argv[5]
+res, tables, presets, stage_preset, test_views = sys.argv[1], sys.argv[2].split(), sys.argv[3].split(), sys.argv[4], sys.argv[5]
 ROWS = [("lightfuse", "LightFuse"), ("baked", "Baked"), ("no_retracing", "No re-tracing")]
 
+# A row's figures: its eval.json, or, for rows measured before results were committed, a
+# transcribed.json holding the same "relighting" figures and where they were transcribed from.
+def source(folder):
+    for name in ("eval.json", "transcribed.json"):
+        path = os.path.join(res, folder, name)
+        if os.path.isfile(path):
+            return path
+    return None
+
 def ev(folder):
-    with open(os.path.join(out, "results", folder, "eval.json")) as f:
+    with open(source(folder)) as f:
         return json.load(f)
 
 def fig(row, key="raw"):
     m = row[key]
     return f"{m['psnr_srgb_db']:.2f} | {m['ssim_srgb']:.3f}"
 
-earlier = [p for p in ["bedroom", "playroom", "livingroom", "kitchen"]
-           if p not in presets and os.path.isfile(os.path.join(out, "results", p, "eval.json"))]
+earlier = [p for p in ["bedroom", "playroom", "livingroom", "kitchen"] if p not in presets and source(p)]
+transcribed = [p for p in earlier if source(p).endswith("transcribed.json")]
 print(f"Measured by `bash scripts/paper_tables.sh --tables \"{' '.join(tables)}\" --presets \"{' '.join(presets)}\" "
       f"--preset {stage_preset} --test-views {test_views}`"
-      + (f" (rows {', '.join(earlier)}: earlier sittings of the same command, with `--presets` naming them)" if earlier else "")
+      + (f" (rows {', '.join(earlier)}: earlier sittings of the same command, with `--presets` naming them"
+         + (f"; {', '.join(transcribed)}: transcribed to two decimals from the README of their sitting, the full results lost with that machine's data, so means may differ by 0.01"
+            if transcribed else "") + ")" if earlier else "")
       + " (PSNR dB / SSIM on 8-bit sRGB, 32 spp, denoised; \"rescaled\": after "
       "the per-channel median albedo rescale; the test arrangement under the environments no training "
       "state saw).\n")
@@ -167,7 +182,7 @@ if "1" in tables:
     print("|---" * (2 * len(ROWS) + 3) + "|")
     # Every preset measured so far (in any sitting), so the table can grow over several.
     every = ["bedroom", "playroom", "livingroom", "kitchen"] + [p for p in presets if p not in ("bedroom", "playroom", "livingroom", "kitchen")]
-    have = lambda p: os.path.isfile(os.path.join(out, "results", p, "eval.json"))
+    have = lambda p: source(p) is not None
     per = {p: ev(p)["relighting"] for p in every if have(p)}
     for p in every:
         if p in per:
