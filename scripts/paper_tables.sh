@@ -8,7 +8,7 @@
 #            8 -> 16 spp), on the full run's refined geometry.
 # Every step is skipped when its output exists and resumes from its checkpoint when it was
 # killed, so the script can be stopped and run again. Each evaluation's eval.json and eval.md,
-# and each stage's report.json, are kept in <results>/<preset>[/<variant>] (a few kB; by default
+# and each stage's report.json, are kept in <results>/<preset>[/<variant>] (~110 kB; by default
 # docs/paper-results, which is committed: the tables are measured over several sittings on
 # machines that keep no data between them), and a row whose results are there is not run again: with --prune, a preset's dataset and work
 # folders (~GBs) are deleted as soon as every requested table has what it needs from them, so
