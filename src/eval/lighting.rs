@@ -71,7 +71,6 @@ fn irradiance(env: &Environment) -> Vec<([f64; 3], f64)> {
         })
         .collect();
     let (nw, nh) = IRRADIANCE_NORMALS;
-    let grid = Environment::constant("n", nw, nh, [0.0; 3]);
     (0..nh)
         .flat_map(|y| (0..nw).map(move |x| (x, y)))
         .map(|(x, y)| {
@@ -85,7 +84,7 @@ fn irradiance(env: &Environment) -> Vec<([f64; 3], f64)> {
                     }
                 }
             }
-            (e, grid.texel_solid_angle(y))
+            (e, crate::scene::environment::texel_solid_angle(nw, nh, y))
         })
         .collect()
 }

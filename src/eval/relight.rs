@@ -473,12 +473,20 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                 } else {
                     None
                 };
+                let status = format!(
+                    "{} {} view {v}: LightFuse {:.1} dB",
+                    d.states[k].name,
+                    runs[r].training_state.unwrap_or(runs[r].environment),
+                    rows["lightfuse"].raw.psnr_srgb_db
+                );
                 figures[r].views.push(ViewFigures {
                     frame: frame.file_path.clone(),
                     image,
                     rows,
                 });
                 bar.inc(1);
+                // Without a terminal (a log), a plain line about every tenth of the frames.
+                bar.status(&status);
             }
         }
     }

@@ -12,6 +12,16 @@ pub struct Environment {
     pub pixels: Vec<[f32; 3]>,
 }
 
+/// Solid angle of a texel in row `y` of a `width` × `height` lat-long map: the sin θ Jacobian,
+/// 2π/width · (cos θ_y − cos θ_{y+1}).
+pub fn texel_solid_angle(width: usize, height: usize, y: usize) -> f64 {
+    let h = height as f64;
+    let dphi = 2.0 * std::f64::consts::PI / width as f64;
+    let t0 = std::f64::consts::PI * y as f64 / h;
+    let t1 = std::f64::consts::PI * (y + 1) as f64 / h;
+    dphi * (t0.cos() - t1.cos())
+}
+
 impl Environment {
     /// Refuses anything but an equirectangular (2:1) map; the error names `file` and `field`.
     pub fn check_latlong(&self, file: &std::path::Path, field: &str) -> crate::error::Result<()> {
@@ -62,13 +72,9 @@ impl Environment {
         Self::new(name, width, height, vec![rgb; width * height])
     }
 
-    /// Solid angle of a texel in row `y`: the sin θ Jacobian of the lat-long map.
+    /// Solid angle of a texel in row `y` ([`texel_solid_angle`] of this map's size).
     pub fn texel_solid_angle(&self, y: usize) -> f64 {
-        let h = self.height as f64;
-        let dphi = 2.0 * std::f64::consts::PI / self.width as f64;
-        let t0 = std::f64::consts::PI * y as f64 / h;
-        let t1 = std::f64::consts::PI * (y + 1) as f64 / h;
-        dphi * (t0.cos() - t1.cos())
+        texel_solid_angle(self.width, self.height, y)
     }
 
     /// ∫ L dω per channel: the energy that resampling must keep.

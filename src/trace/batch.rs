@@ -126,10 +126,7 @@ impl HitBatch {
         if evict || self.cut || self.behind < T_MIN {
             self.settle();
         }
-        if self.cut || self.len == BATCH {
-            let last = self.hits[self.len - 1];
-            self.upper = (last.t, last.key);
-        }
+        self.rebound();
     }
 
     /// Ends the filling phase: sorts the buffer by [`before`] (a total order on hits: every key is
@@ -148,6 +145,13 @@ impl HitBatch {
         });
         self.settled = 0;
         self.settle();
+        self.rebound();
+    }
+
+    /// Bounds the batch by its last hit once it is cut or full: nothing behind that hit can
+    /// enter it any more.
+    #[inline(always)]
+    fn rebound(&mut self) {
         if self.cut || self.len == BATCH {
             let last = self.hits[self.len - 1];
             self.upper = (last.t, last.key);
