@@ -161,6 +161,10 @@ pub struct InvertArgs {
     /// estimation, no MIS: the paper's Table 4 baseline).
     #[arg(long, default_value = "full")]
     pub estimator: String,
+    /// Image term: "l1" (the paper's) or "weighted-l2" (unbiased at low spp:
+    /// `stages::invert::train::Loss`); default: the preset's.
+    #[arg(long)]
+    pub loss: Option<String>,
     /// Sub-pixel positions per training pixel whose primary records are traced once and
     /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
     /// memory in proportion (the report states it).
@@ -846,6 +850,13 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
             )))
         }
     };
+    if let Some(l) = &a.loss {
+        settings.loss = crate::stages::invert::train::Loss::parse(l).ok_or_else(|| {
+            Error::Usage(format!(
+                "--loss: expected \"l1\" or \"weighted-l2\", found {l:?}"
+            ))
+        })?;
+    }
     if a.eval_spp == 0 || a.eval_stride == 0 {
         return Err(Error::Usage(
             "--eval-spp and --eval-stride: expected at least 1".into(),
