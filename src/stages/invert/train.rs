@@ -75,9 +75,10 @@ impl SppSchedule {
 /// E[∂ℓ/∂L_p] · ∂E[L_p]/∂θ. For L1, E[sign(L_p − I_p)] vanishes where the *median* of L_p
 /// meets I_p, not its mean: where the estimate is skewed (a rarely sampled bright source seen
 /// through a small opening: most samples below the mean, a few far above), the fit settles
-/// with the mean above the capture, so the materials come out too bright there, the more so
-/// the fewer the samples. A loss whose derivative is linear in L_p has expectation
-/// ∂ℓ/∂L_p(E[L_p]): unbiased at any spp.
+/// with the mean above the capture, the more so the fewer the samples; which parameters carry
+/// the excess (materials or the environment) depends on the scene (measured: on the demo and
+/// kitchen, L1 left the environments 25-30 % too bright and the albedo too dark). A loss whose
+/// derivative is linear in L_p has expectation ∂ℓ/∂L_p(E[L_p]): unbiased at any spp.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Loss {
