@@ -19,7 +19,8 @@
 # Usage: bash scripts/paper_tables.sh [--out data/paper] [--results docs/paper-results] [--presets "bedroom playroom livingroom kitchen"]
 #            [--tables "1 3 4"] [--preset fast|paper] [--test-views 8] [--prune] [--readme]
 # Cost on this machine (2 cores), fast preset, per preset: generation ~15 min, stage 1 ~25-45
-# min, stage 2 ~20 min; Tables 3 and 4 add 8 inverse renderings and evaluations of bedroom.
+# min, stage 2 ~20 min; Tables 3 and 4 add 7 variants of bedroom (4 x refine + invert + a
+# LightFuse-only evaluation, 3 x invert + the same evaluation: ~1 h each).
 # One preset's Table 1 row took 1.5-2 h here (bedroom, playroom). Hours in all: run it overnight.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -122,8 +123,10 @@ variant() {
     "$lf" invert "$ds" "$w" --preset "$stage_preset" --eval-spp 16 --eval-stride 2 --resume $invert_flags >&2
   fi
   if [ ! -f "$w/eval/eval.json" ]; then
-    say "bedroom/$name: lightfuse evaluate"
-    "$lf" evaluate "$ds" "$w" --no-images >&2
+    # The ablation tables compare LightFuse's relighting only (Baked does not depend on any
+    # switch; Table 2 is not part of them): about half the rendering of a full evaluation.
+    say "bedroom/$name: lightfuse evaluate (LightFuse, Table 1)"
+    "$lf" evaluate "$ds" "$w" --no-images --rows lightfuse --tables 1 >&2
   fi
   keep "$w" "$res/bedroom/$name"
 }

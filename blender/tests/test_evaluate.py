@@ -3,7 +3,7 @@ state's arrangement under each unseen environment (Table 1) and under each train
 recovered lighting (Table 2), three rows (LightFuse, Baked, No re-tracing) against the Cycles
 frames, eval.json / eval.md / a comparison strip per view / report.html (opened in headless
 Chromium); `run` skips the stages whose outputs
-are up to date; bad input is one clear error with exit code 2 and nothing written. (The figures
+are up to date, and a partial evaluation (`--rows`, `--tables`) keeps LightFuse's figures; bad input is one clear error with exit code 2 and nothing written. (The figures
 are measured on the demo and reported in the README; `tests/evaluate.rs` checks the pieces.)"""
 import json
 import math
@@ -67,6 +67,20 @@ def test_run_skips_finished_stages_and_evaluate_writes_both_tables(tiny_dataset,
     md = (work / "eval" / "eval.md").read_text()
     assert "Table 1" in md and "Table 2" in md and "No re-tracing" in md
 
+    # An ablation's evaluation: LightFuse alone, Table 1's runs only. Each row draws its own
+    # samples, so the LightFuse figures are the full evaluation's to the bit; `run` counts the
+    # partial report as out of date.
+    part = json.loads(ok("--json", "evaluate", ds, work, "--spp", "2", "--rows", "lightfuse",
+                         "--tables", "1", "--no-images"))
+    assert set(part["relighting"]) == {"lightfuse"} and part["synthesis"] == {}, part["synthesis"]
+    relit = [r for r in report["runs"] if not r["training_state"]]
+    assert [r["environment"] for r in part["runs"]] == [r["environment"] for r in relit]
+    assert part["relighting"]["lightfuse"] == report["relighting"]["lightfuse"]
+    assert all(set(v["rows"]) == {"lightfuse"} for r in part["runs"] for v in r["views"])
+    assert "Rendered only: rows LightFuse; Table 1" in (work / "eval" / "eval.md").read_text()
+    p = run("run", ds, "-o", work, "--no-denoise")
+    assert p.returncode == 0 and "evaluate: ran" in p.stderr, p.stderr
+
 
 def check_report_in_browser(eval_dir):
     """report.html in headless Chromium: the tables, every image (view strips, environments,
@@ -119,3 +133,9 @@ def test_evaluate_bad_input_is_one_clear_error_and_writes_nothing(tiny_dataset, 
     assert not (work / "eval").exists() and not (tmp_path / "w2").exists()
     p = run("evaluate", ds, work, "--spp", "0")
     assert p.returncode == 2 and "--spp" in p.stderr, p.stderr
+    for args, what in ((("--rows", "baked"), "lightfuse among the rows"),
+                       (("--tables", "3"), "--tables")):
+        p = run("evaluate", ds, work, *args)
+        assert p.returncode == 2 and what in p.stderr and "panicked" not in p.stderr, p.stderr
+    p = run("run", ds, "-o", tmp_path / "w3", "--loss", "l3")
+    assert p.returncode == 2 and "--loss" in p.stderr and not (tmp_path / "w3").exists(), p.stderr

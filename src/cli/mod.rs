@@ -87,6 +87,18 @@ pub struct EvaluateArgs {
     /// Compare the traced rows as rendered, without Open Image Denoise (the paper denoised).
     #[arg(long)]
     pub no_denoise: bool,
+    /// Rows to render, comma-separated: lightfuse (always), baked, no-retracing. Ablations,
+    /// which compare only LightFuse across variants, render "lightfuse" alone.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "lightfuse,baked,no-retracing"
+    )]
+    pub rows: Vec<String>,
+    /// The paper's tables whose runs to render, comma-separated: 1 (relighting under unseen
+    /// environments), 2 (synthesis under the training states' recovered lighting).
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    pub tables: Vec<String>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -105,6 +117,10 @@ pub struct RunArgs {
     /// Evaluate without Open Image Denoise (the paper denoised).
     #[arg(long)]
     pub no_denoise: bool,
+    /// Stage 3's image term: "l1" (the paper's) or "weighted-l2" (see `lightfuse invert`);
+    /// default: the preset's.
+    #[arg(long)]
+    pub loss: Option<String>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -851,11 +867,7 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
         }
     };
     if let Some(l) = &a.loss {
-        settings.loss = crate::stages::invert::train::Loss::parse(l).ok_or_else(|| {
-            Error::Usage(format!(
-                "--loss: expected \"l1\" or \"weighted-l2\", found {l:?}"
-            ))
-        })?;
+        settings.loss = parse_loss(l)?;
     }
     if a.eval_spp == 0 || a.eval_stride == 0 {
         return Err(Error::Usage(
@@ -926,6 +938,7 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         seed: a.seed,
         images: !a.no_images,
         denoise: !a.no_denoise,
+        selection: relight::Selection::parse(&a.rows, &a.tables)?,
         quiet: cli.quiet || cli.json,
     })?;
     if cli.json {
@@ -945,6 +958,15 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
     Ok(())
 }
 
+/// `--loss` of `invert` and `run`.
+fn parse_loss(l: &str) -> Result<crate::stages::invert::train::Loss> {
+    crate::stages::invert::train::Loss::parse(l).ok_or_else(|| {
+        Error::Usage(format!(
+            "--loss: expected \"l1\" or \"weighted-l2\", found {l:?}"
+        ))
+    })
+}
+
 fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
     use crate::stages::pipeline;
     let steps = pipeline::run(&pipeline::Options {
@@ -953,6 +975,7 @@ fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
         preset: a.preset.clone(),
         force: a.force,
         denoise: !a.no_denoise,
+        loss: a.loss.as_deref().map(parse_loss).transpose()?,
         quiet: cli.quiet || cli.json,
     })?;
     let eval_md = a.out.join("eval").join("eval.md");

@@ -376,12 +376,22 @@ pub fn page(r: &Report, a: &Assets) -> String {
                         .map(|m| format!("{n} {:.2} dB", m.raw.psnr_srgb_db))
                 })
                 .collect();
+            // The strip's columns (see `relight::strip`): a row left out is a grey tile.
+            let col = |key: &str, name: &str| {
+                if v.rows.contains_key(key) {
+                    name.to_string()
+                } else {
+                    format!("{name} (not rendered)")
+                }
+            };
             let _ = writeln!(
                 s,
                 "<div class=\"view\"><div class=\"cols\"><span>Cycles</span><span>LightFuse\
-                 </span><span>Baked</span><span>No re-tracing</span><span>4× |LightFuse − \
+                 </span><span>{}</span><span>{}</span><span>4× |LightFuse − \
                  Cycles|</span></div><img src=\"{}\" alt=\"{}\" loading=\"eager\">\
                  <figcaption>{}: {}</figcaption></div>",
+                col("baked", "Baked"),
+                col("no_retracing", "No re-tracing"),
                 esc(img),
                 esc(&v.frame),
                 esc(&v.frame),

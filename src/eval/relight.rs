@@ -73,7 +73,82 @@ pub struct Options {
     pub images: bool,
     /// Denoise the traced rows with Open Image Denoise (needs the `denoise` build feature).
     pub denoise: bool,
+    /// Which baseline rows and which tables' runs to render (default: everything).
+    pub selection: Selection,
     pub quiet: bool,
+}
+
+/// What an evaluation renders besides the LightFuse row, which it always does: the baseline
+/// rows, and the runs of Table 1 (relighting) and Table 2 (synthesis). Leaving some out serves
+/// ablations, which compare only LightFuse's relighting figure across variants (the baselines
+/// do not depend on the switch being measured) and so need a fraction of the rendering.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Selection {
+    pub baked: bool,
+    pub no_retracing: bool,
+    /// Table 1's runs: the test arrangement under environments no training state saw.
+    pub relighting: bool,
+    /// Table 2's runs: the test arrangement under each training state's recovered lighting.
+    pub synthesis: bool,
+}
+
+impl Default for Selection {
+    fn default() -> Selection {
+        Selection::ALL
+    }
+}
+
+impl Selection {
+    pub const ALL: Selection = Selection {
+        baked: true,
+        no_retracing: true,
+        relighting: true,
+        synthesis: true,
+    };
+
+    /// `--rows` (keys of [`ROWS`], `-` for `_` accepted) and `--tables` ("1", "2"); "lightfuse"
+    /// must be among the rows: it is what the evaluation is of.
+    pub fn parse(rows: &[String], tables: &[String]) -> Result<Selection> {
+        let mut s = Selection {
+            baked: false,
+            no_retracing: false,
+            relighting: false,
+            synthesis: false,
+        };
+        let mut lightfuse = false;
+        for r in rows {
+            match r.trim().replace('-', "_").as_str() {
+                "lightfuse" => lightfuse = true,
+                "baked" => s.baked = true,
+                "no_retracing" => s.no_retracing = true,
+                _ => {
+                    return Err(Error::Usage(format!(
+                        "--rows: expected lightfuse, baked or no-retracing, found {r:?}"
+                    )))
+                }
+            }
+        }
+        if !lightfuse {
+            return Err(Error::Usage(
+                "--rows: expected lightfuse among the rows (the row the evaluation is of)".into(),
+            ));
+        }
+        for t in tables {
+            match t.trim() {
+                "1" => s.relighting = true,
+                "2" => s.synthesis = true,
+                _ => {
+                    return Err(Error::Usage(format!(
+                        "--tables: expected 1 (relighting) or 2 (synthesis), found {t:?}"
+                    )))
+                }
+            }
+        }
+        if !(s.relighting || s.synthesis) {
+            return Err(Error::Usage("--tables: expected 1, 2 or both".into()));
+        }
+        Ok(s)
+    }
 }
 
 /// What [`evaluate`] records in the report's `denoise` when it denoises.
@@ -167,6 +242,9 @@ pub struct Report {
     pub seed: u32,
     /// What denoised the traced rows: [`DENOISER`], or "none".
     pub denoise: String,
+    /// What was rendered (reports written before the field: everything).
+    #[serde(default)]
+    pub selection: Selection,
     /// Per-channel median of true / recovered base colour over the test views' surface pixels.
     pub albedo_ratio: [f64; 3],
     pub albedo_pixels: usize,
@@ -188,13 +266,13 @@ struct Run<'d> {
     frames: &'d [Frame],
 }
 
-fn runs(d: &Dataset) -> Vec<Run<'_>> {
+fn runs(d: &Dataset, sel: Selection) -> Vec<Run<'_>> {
     let mut out = Vec::new();
     for (k, s) in d.states.iter().enumerate() {
         if s.split != "test" {
             continue;
         }
-        if let (Some(env), false) = (&s.environment, s.frames.is_empty()) {
+        if let (Some(env), false, true) = (&s.environment, s.frames.is_empty(), sel.relighting) {
             out.push(Run {
                 state: k,
                 environment: env,
@@ -203,7 +281,11 @@ fn runs(d: &Dataset) -> Vec<Run<'_>> {
             });
         }
         for r in &s.relight {
-            if !r.frames.is_empty() {
+            let wanted = match r.training_state {
+                Some(_) => sel.synthesis,
+                None => sel.relighting,
+            };
+            if wanted && !r.frames.is_empty() {
                 out.push(Run {
                     state: k,
                     environment: &r.environment,
@@ -218,7 +300,7 @@ fn runs(d: &Dataset) -> Vec<Run<'_>> {
 
 /// Refuses a dataset with nothing to evaluate against: no test state with frames.
 pub fn check_dataset(d: &Dataset) -> Result<()> {
-    if runs(d).is_empty() {
+    if runs(d, Selection::ALL).is_empty() {
         return Err(Error::invalid(
             &d.file,
             "states",
@@ -299,7 +381,14 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
     }
     let d = Dataset::read(&opts.dataset)?;
     check_dataset(&d)?;
-    let runs = runs(&d);
+    let runs = runs(&d, opts.selection);
+    if runs.is_empty() {
+        return Err(Error::invalid(
+            &d.file,
+            "states.relight",
+            "expected a test run of the requested --tables (Table 2's are relight runs with a training_state)",
+        ));
+    }
     let (relit_file, relit) = stage_scene(&opts.work, "relightable.glb", &d, "lightfuse invert")?;
     let (baked_file, baked) = stage_scene(&opts.work, "scene.glb", &d, "lightfuse reconstruct")?;
     // Everything read and checked before anything is rendered or written.
@@ -409,7 +498,12 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                 let env = &envs[r].0;
                 let bg = environment_image(env, cam);
                 let mut traced = Vec::new();
-                for strategy in [Strategy::Full, Strategy::Unshadowed] {
+                let strategies: &[Strategy] = if opts.selection.no_retracing {
+                    &[Strategy::Full, Strategy::Unshadowed]
+                } else {
+                    &[Strategy::Full]
+                };
+                for &strategy in strategies {
                     let est = Estimator::new(&placed, env, eps).with_strategy(strategy);
                     let (mut images, n) = p.shade(&est, &scales);
                     rays += n;
@@ -430,27 +524,33 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                         &mut strips,
                     )?);
                 }
-                let splat = crate::splat::forward(&placements, cam).image;
-                let baked_img: Vec<[f32; 3]> = (0..splat.color.len())
-                    .map(|i| {
-                        let t = 1.0 - splat.alpha[i].clamp(0.0, 1.0);
-                        [0, 1, 2].map(|c| splat.color[i][c] + t * bg[i][c])
-                    })
-                    .collect();
+                let baked_img: Option<Vec<[f32; 3]>> = opts.selection.baked.then(|| {
+                    let splat = crate::splat::forward(&placements, cam).image;
+                    (0..splat.color.len())
+                        .map(|i| {
+                            let t = 1.0 - splat.alpha[i].clamp(0.0, 1.0);
+                            [0, 1, 2].map(|c| splat.color[i][c] + t * bg[i][c])
+                        })
+                        .collect()
+                });
                 let row = |images: &[Vec<[f32; 3]>]| RowFigures {
                     raw: Metrics::of(&images[0], &truth, w, h),
                     rescaled: Some(Metrics::of(&images[1], &truth, w, h)),
                 };
                 let mut rows = BTreeMap::new();
                 rows.insert("lightfuse".to_string(), row(&traced[0]));
-                rows.insert(
-                    "baked".to_string(),
-                    RowFigures {
-                        raw: Metrics::of(&baked_img, &truth, w, h),
-                        rescaled: None,
-                    },
-                );
-                rows.insert("no_retracing".to_string(), row(&traced[1]));
+                if let Some(img) = &baked_img {
+                    rows.insert(
+                        "baked".to_string(),
+                        RowFigures {
+                            raw: Metrics::of(img, &truth, w, h),
+                            rescaled: None,
+                        },
+                    );
+                }
+                if let Some(images) = traced.get(1) {
+                    rows.insert("no_retracing".to_string(), row(images));
+                }
                 let image = if opts.images {
                     let run_name = Path::new(runs[r].environment)
                         .file_stem()
@@ -467,7 +567,13 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                     );
                     strips.push((
                         out_dir.join(&rel),
-                        strip(&[&truth, &traced[0][0], &baked_img, &traced[1][0]], w, h),
+                        strip(
+                            &truth,
+                            &traced[0][0],
+                            &[baked_img.as_deref(), traced.get(1).map(|t| &t[0][..])],
+                            w,
+                            h,
+                        ),
                     ));
                     Some(rel)
                 } else {
@@ -528,6 +634,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         spp: opts.spp,
         seed: opts.seed,
         denoise: if opts.denoise { DENOISER } else { "none" }.into(),
+        selection: opts.selection,
         albedo_ratio: albedo.ratio,
         albedo_pixels: albedo.pixels,
         relighting: pooled(false),
@@ -662,19 +769,29 @@ fn environment_pairs(
     Ok(pairs)
 }
 
-/// A strip of 8-bit sRGB images side by side, then |first − second| × 4 (the error of the
-/// second against the first).
-fn strip(images: &[&[[f32; 3]]], w: u32, h: u32) -> image::RgbImage {
-    let n = images.len() as u32 + 1;
+/// A strip of 8-bit sRGB images side by side: the truth, LightFuse, the `others` (a row not
+/// rendered is a mid-grey tile, so the columns keep their places), then |LightFuse − truth| × 4.
+fn strip(
+    truth: &[[f32; 3]],
+    lightfuse: &[[f32; 3]],
+    others: &[Option<&[[f32; 3]]>],
+    w: u32,
+    h: u32,
+) -> image::RgbImage {
+    let n = others.len() as u32 + 3;
     let mut out = image::RgbImage::new(n * w, h);
     let byte = |v: f32| (v * 255.0).round().clamp(0.0, 255.0) as u8;
-    let enc: Vec<Vec<[f32; 3]>> = images.iter().map(|i| srgb8(i)).collect();
+    let (t, l) = (srgb8(truth), srgb8(lightfuse));
+    let enc: Vec<Option<Vec<[f32; 3]>>> = others.iter().map(|i| i.map(srgb8)).collect();
     for i in 0..(w * h) as usize {
         let (x, y) = (i as u32 % w, i as u32 / w);
+        out.put_pixel(x, y, image::Rgb(t[i].map(byte)));
+        out.put_pixel(x + w, y, image::Rgb(l[i].map(byte)));
         for (j, img) in enc.iter().enumerate() {
-            out.put_pixel(x + j as u32 * w, y, image::Rgb(img[i].map(byte)));
+            let px = img.as_ref().map_or([128; 3], |img| img[i].map(byte));
+            out.put_pixel(x + (j as u32 + 2) * w, y, image::Rgb(px));
         }
-        let e = [0, 1, 2].map(|c| byte(4.0 * (enc[1][i][c] - enc[0][i][c]).abs()));
+        let e = [0, 1, 2].map(|c| byte(4.0 * (l[i][c] - t[i][c]).abs()));
         out.put_pixel(x + (n - 1) * w, y, image::Rgb(e));
     }
     out
@@ -708,11 +825,33 @@ pub fn markdown(r: &Report) -> String {
         "Evaluation of `{}` on `{}`: {} spp, denoising: {}; median albedo ratio {:.3}, {:.3}, {:.3} ({} pixels). PSNR and SSIM on 8-bit sRGB, HDR PSNR on scene-linear radiance with the reference's peak; means over images.\n\n",
         r.relightable, r.dataset, r.spp, r.denoise, r.albedo_ratio[0], r.albedo_ratio[1], r.albedo_ratio[2], r.albedo_pixels
     ));
-    table(
-        &mut s,
-        "Novel-state relighting (Table 1): the test arrangement under environments no training state saw",
-        &r.relighting,
-    );
+    if r.selection != Selection::ALL {
+        let sel = r.selection;
+        let rows: Vec<&str> = [
+            ("LightFuse", true),
+            ("Baked", sel.baked),
+            ("No re-tracing", sel.no_retracing),
+        ]
+        .iter()
+        .filter_map(|&(n, on)| on.then_some(n))
+        .collect();
+        let tables: Vec<&str> = [("1", sel.relighting), ("2", sel.synthesis)]
+            .iter()
+            .filter_map(|&(n, on)| on.then_some(n))
+            .collect();
+        s.push_str(&format!(
+            "Rendered only: rows {}; Table {} (`--rows`, `--tables`).\n\n",
+            rows.join(", "),
+            tables.join(" and ")
+        ));
+    }
+    if r.selection.relighting {
+        table(
+            &mut s,
+            "Novel-state relighting (Table 1): the test arrangement under environments no training state saw",
+            &r.relighting,
+        );
+    }
     if !r.synthesis.is_empty() {
         table(
             &mut s,
@@ -740,4 +879,42 @@ pub fn markdown(r: &Report) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn words(s: &str) -> Vec<String> {
+        s.split(',').map(str::to_string).collect()
+    }
+
+    #[test]
+    fn selection_parses_rows_and_tables_and_refuses_the_rest() {
+        let all = Selection::parse(&words("lightfuse,baked,no-retracing"), &words("1,2")).unwrap();
+        assert_eq!(all, Selection::ALL);
+        let ablation = Selection::parse(&words("lightfuse"), &words("1")).unwrap();
+        assert_eq!(
+            ablation,
+            Selection {
+                baked: false,
+                no_retracing: false,
+                relighting: true,
+                synthesis: false
+            }
+        );
+        assert!(
+            Selection::parse(&words("no_retracing,lightfuse"), &words("2"))
+                .unwrap()
+                .no_retracing
+        );
+        for (rows, tables, what) in [
+            ("baked", "1", "lightfuse among the rows"),
+            ("lightfuse,cycles", "1", "found \"cycles\""),
+            ("lightfuse", "3", "--tables"),
+        ] {
+            let e = Selection::parse(&words(rows), &words(tables)).unwrap_err();
+            assert!(e.to_string().contains(what), "{e}");
+        }
+    }
 }

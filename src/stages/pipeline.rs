@@ -21,6 +21,9 @@ pub struct Options {
     /// Denoise the evaluation's traced rows (see [`crate::eval::relight::Options::denoise`]);
     /// an `eval.json` made with the other setting is out of date.
     pub denoise: bool,
+    /// Stage 3's image term (default: the preset's); a stage-3 output trained with another is
+    /// out of date.
+    pub loss: Option<crate::stages::invert::train::Loss>,
     pub quiet: bool,
 }
 
@@ -55,17 +58,41 @@ fn up_to_date(outputs: &[PathBuf], inputs: &[PathBuf]) -> bool {
     })
 }
 
-/// False when an evaluation output was made with another denoising setting than `denoise`.
+/// False when an evaluation output was made with another denoising setting than `denoise`, or
+/// rendered only some of the rows or tables (`lightfuse evaluate --rows/--tables`).
 fn eval_settings_match(eval_json: &Path, denoise: bool) -> bool {
-    std::fs::read(eval_json)
+    let Some(v) = std::fs::read(eval_json)
         .ok()
         .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .and_then(|v| {
-            v.get("denoise")
-                .and_then(|d| d.as_str())
-                .map(|d| d != "none")
+    else {
+        return false;
+    };
+    let denoised = v
+        .get("denoise")
+        .and_then(|d| d.as_str())
+        .map(|d| d != "none");
+    // Reports written before the field rendered everything.
+    let complete = v.get("selection").is_none_or(|s| {
+        serde_json::from_value::<crate::eval::relight::Selection>(s.clone())
+            .is_ok_and(|s| s == crate::eval::relight::Selection::ALL)
+    });
+    denoised == Some(denoise) && complete
+}
+
+/// False when stage 3's report was trained with another image term than `loss` (reports
+/// written before the field: L1, the only one there was).
+fn invert_settings_match(report_json: &Path, loss: crate::stages::invert::train::Loss) -> bool {
+    std::fs::read(report_json)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .is_some_and(|v| {
+            let recorded = v.get("settings").and_then(|s| s.get("loss")).cloned();
+            match recorded {
+                None => loss == crate::stages::invert::train::Loss::L1,
+                Some(l) => serde_json::from_value::<crate::stages::invert::train::Loss>(l)
+                    .is_ok_and(|l| l == loss),
+            }
         })
-        .is_some_and(|denoised| denoised == denoise)
 }
 
 /// Runs stages 1–3 and the evaluation; returns what each step did.
@@ -103,8 +130,23 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     std::fs::create_dir_all(&opts.work).map_err(|e| Error::io(&opts.work, e))?;
     let w = &opts.work;
     let ds = dataset.file.clone();
-    let settings_match =
-        |name: &str, output: &Path| name != "evaluate" || eval_settings_match(output, opts.denoise);
+    let invert_settings = || {
+        let mut s = if paper {
+            crate::stages::invert::Settings::paper()
+        } else {
+            crate::stages::invert::Settings::fast()
+        };
+        if let Some(l) = opts.loss {
+            s.loss = l;
+        }
+        s
+    };
+    let loss = invert_settings().loss;
+    let settings_match = |name: &str, outputs: &[PathBuf]| match name {
+        "evaluate" => eval_settings_match(&outputs[0], opts.denoise),
+        "stage 3: invert" => invert_settings_match(&outputs[1], loss),
+        _ => true,
+    };
     let mut steps = Vec::new();
     let mut step = |name: &str,
                     outputs: Vec<PathBuf>,
@@ -112,7 +154,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                     f: &mut dyn FnMut(bool) -> Result<()>|
      -> Result<()> {
         let t = std::time::Instant::now();
-        if !fresh && up_to_date(&outputs, &inputs) && settings_match(name, &outputs[0]) {
+        let same_settings = settings_match(name, &outputs);
+        if !fresh && up_to_date(&outputs, &inputs) && same_settings {
             say(
                 opts.quiet,
                 &format!("== {name}: up to date ({}), skipped", outputs[0].display()),
@@ -125,7 +168,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             return Ok(());
         }
         say(opts.quiet, &format!("== {name}"));
-        f(!fresh)?;
+        // Outputs made with other settings: their checkpoint cannot be resumed either.
+        f(!fresh && (same_settings || !outputs[0].exists()))?;
         steps.push(StepOutcome {
             step: name.into(),
             outcome: "ran".into(),
@@ -194,12 +238,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
         ],
         vec![ds.clone(), w.join("refined.glb")],
         &mut |resume| {
-            use crate::stages::invert::{self, Settings};
-            let settings = if paper {
-                Settings::paper()
-            } else {
-                Settings::fast()
-            };
+            use crate::stages::invert;
+            let settings = invert_settings();
             invert::invert(&invert::Options {
                 dataset: ds.clone(),
                 work: w.clone(),
@@ -225,6 +265,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                 seed: 0,
                 images: true,
                 denoise: opts.denoise,
+                selection: crate::eval::relight::Selection::ALL,
                 quiet: opts.quiet,
             })
             .map(|_| ())
@@ -268,6 +309,37 @@ mod tests {
             !up_to_date(&[output, dir.join("none")], &[input]),
             "one output missing"
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn outputs_made_with_other_settings_are_out_of_date() {
+        use crate::stages::invert::train::Loss;
+        let dir = std::env::temp_dir().join(format!("lf-pipeline-settings-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("report.json");
+        let write = |v: serde_json::Value| std::fs::write(&f, v.to_string()).unwrap();
+        // Evaluation: the denoising setting, and every row and table rendered.
+        write(serde_json::json!({"denoise": "Open Image Denoise"}));
+        assert!(eval_settings_match(&f, true) && !eval_settings_match(&f, false));
+        let all = serde_json::to_value(crate::eval::relight::Selection::ALL).unwrap();
+        write(serde_json::json!({"denoise": "none", "selection": all}));
+        assert!(eval_settings_match(&f, false));
+        let mut part = crate::eval::relight::Selection::ALL;
+        part.baked = false;
+        write(serde_json::json!({"denoise": "none", "selection": part}));
+        assert!(
+            !eval_settings_match(&f, false),
+            "an ablation's partial evaluation"
+        );
+        // Stage 3: the image term (reports without it were trained with L1).
+        write(serde_json::json!({"settings": {"iterations": 3}}));
+        assert!(invert_settings_match(&f, Loss::L1));
+        assert!(!invert_settings_match(&f, Loss::WeightedL2));
+        write(serde_json::json!({"settings": {"loss": "weighted_l2"}}));
+        assert!(invert_settings_match(&f, Loss::WeightedL2));
+        assert!(!invert_settings_match(&f, Loss::L1));
+        assert!(!invert_settings_match(&dir.join("none.json"), Loss::L1));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
