@@ -770,9 +770,24 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
                 v.state, v.view, v.psnr_srgb, v.median_depth_error_m, v.image
             );
         }
+        let brief = |e: &crate::eval::pose::PoseError| {
+            format!(
+                "{:.2} deg, {:.2} cm",
+                e.rotation_deg,
+                100.0 * e.translation_m
+            )
+        };
         for p in &report.pose_errors {
+            let before = match (&p.registered, &p.aligned) {
+                (r, Some(a)) => format!(
+                    " (registered: {}; aligned: {})",
+                    r.as_ref().map_or("none".into(), brief),
+                    brief(a)
+                ),
+                _ => String::new(),
+            };
             eprintln!(
-                "  pose {} {}: {:.2} deg ({:.1} deg ignoring its symmetries), {:.2} cm at its origin or symmetry centre",
+                "  pose {} {}: {:.2} deg ({:.1} deg ignoring its symmetries), {:.2} cm at its origin or symmetry centre{before}",
                 p.state,
                 p.object,
                 p.error.rotation_deg,

@@ -89,8 +89,16 @@ pub fn median(values: &mut [f64]) -> f64 {
 pub struct ObjectPoseError {
     pub state: String,
     pub object: String,
+    /// The pose the stage ended with.
     #[serde(flatten)]
     pub error: PoseError,
+    /// The same error of the pose point-cloud registration found, and of the one the rendered
+    /// alignment chose and training started from (absent with oracle poses and in work folders
+    /// without `poses.json`): where an error entered.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub registered: Option<PoseError>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub aligned: Option<PoseError>,
 }
 
 #[cfg(test)]
@@ -129,11 +137,22 @@ mod tests {
                 rotation_deg_raw: 2.0,
                 translation_m: 0.5,
             },
+            registered: None,
+            aligned: None,
         };
         let text = serde_json::to_string(&e).expect("serialises");
         assert_eq!(
             text,
             r#"{"state":"s1","object":"mug","rotation_deg":1.0,"rotation_deg_ignoring_symmetry":2.0,"translation_cm":50.0}"#
+        );
+        let before = ObjectPoseError {
+            registered: Some(e.error),
+            ..e
+        };
+        let text = serde_json::to_string(&before).expect("serialises");
+        assert!(
+            text.ends_with(r#""translation_cm":50.0,"registered":{"rotation_deg":1.0,"rotation_deg_ignoring_symmetry":2.0,"translation_cm":50.0}}"#),
+            "{text}"
         );
     }
 }

@@ -9,7 +9,9 @@
 //! 4. Train ([`train::Trainer`]); at a third of the iterations, seed surfels where the render lies
 //!    behind the captured depth (eq. completion-mask).
 //! 5. Write `scene.glb`, `report.json` (held-out PSNR, depth error, pose errors, label shares),
-//!    `log.jsonl` (losses) and `checkpoint.json` (resumable with `--resume`).
+//!    `log.jsonl` (losses) and `checkpoint.json` (resumable with `--resume`); `poses.json`, the
+//!    poses of step 2 before training ([`PoseSteps`]), is written when they are found, so the
+//!    report can say where a pose error entered.
 
 use super::train::{render_state, Model, RawComponent, Settings, Trainer};
 use super::{align, completion, init, register, segment};
@@ -23,7 +25,7 @@ use crate::io::AtomicFiles;
 use crate::scene::{Component, Rigid, Scene, State};
 use crate::stages::common::{read_checkpoint, say, Progress, StageLog, StageLoop};
 use glam::Vec3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -75,6 +77,33 @@ pub struct Report {
     /// surfel carries its label.
     pub label_share: Vec<(String, f64)>,
     pub oracle_poses: bool,
+}
+
+/// `poses.json`: the poses of each non-reference object, `[j][o]` per training state (the
+/// reference state's identities included), as step 2 found them: by point-cloud registration
+/// (none where it failed) and by the rendered alignment that training starts from.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PoseSteps {
+    pub format: String,
+    pub registered: Vec<Vec<Option<Rigid>>>,
+    pub aligned: Vec<Vec<Rigid>>,
+}
+
+impl PoseSteps {
+    pub const FORMAT: &'static str = "lightfuse-stage1-poses/1";
+    pub const FILE: &'static str = "poses.json";
+
+    /// The record in `out`, if there is one of `states` x `objects` poses (a record of another
+    /// dataset or an older format counts as none: it only adds figures to the report).
+    fn read(out: &Path, states: usize, objects: usize) -> Option<PoseSteps> {
+        let p: PoseSteps =
+            serde_json::from_slice(&std::fs::read(out.join(Self::FILE)).ok()?).ok()?;
+        let fits = |lens: Vec<usize>| lens.len() == states && lens.iter().all(|&l| l == objects);
+        (p.format == Self::FORMAT
+            && fits(p.registered.iter().map(Vec::len).collect())
+            && fits(p.aligned.iter().map(Vec::len).collect()))
+        .then_some(p)
+    }
 }
 
 /// Splits the observations of each training state into (training, held-out): views with index
@@ -256,7 +285,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                     .collect();
                 let refs = align::median_footprint(&train[0], &ids)
                     .map(|voxel| align::reference_surfels(&train[0], &ids, voxel));
-                let out: Vec<Vec<Rigid>> = match refs {
+                let aligned: Vec<Vec<Rigid>> = match refs {
                     Some(refs) => align::object_poses_by_rendering(
                         &refs,
                         &ids,
@@ -278,7 +307,15 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                         t.elapsed().as_secs_f64()
                     ),
                 );
-                out
+                crate::stages::common::write_checkpoint(
+                    &opts.out.join(PoseSteps::FILE),
+                    &PoseSteps {
+                        format: PoseSteps::FORMAT.into(),
+                        registered: initial,
+                        aligned: aligned.clone(),
+                    },
+                )?;
+                aligned
             };
             let iopts = init::InitOptions {
                 voxel: opts.voxel,
@@ -473,7 +510,11 @@ fn evaluate(
     }
     let extent = (hi - lo).length() as f64;
 
-    // Pose errors against the ground truth (evaluation only), forgiving declared symmetries.
+    // Pose errors against the ground truth (evaluation only), forgiving declared symmetries;
+    // also of the poses before training, when step 2 recorded them (not with oracle poses).
+    let steps = (!opts.oracle_poses)
+        .then(|| PoseSteps::read(&opts.out, train_states.len(), dataset.objects.len()))
+        .flatten();
     let mut pose_errors = Vec::new();
     let ref_k = train_states[0];
     for (j, &k) in train_states.iter().enumerate().skip(1) {
@@ -493,10 +534,16 @@ fn evaluate(
                     }
                 }
             };
+            let error = |pose: &Rigid| pose_error(&gt, pose, &frame, &obj.symmetries);
             pose_errors.push(ObjectPoseError {
                 state: dataset.states[k].name.clone(),
                 object: obj.name.clone(),
-                error: pose_error(&gt, &model.poses[j][o], &frame, &obj.symmetries),
+                error: error(&model.poses[j][o]),
+                registered: steps
+                    .as_ref()
+                    .and_then(|s| s.registered[j][o].as_ref())
+                    .map(error),
+                aligned: steps.as_ref().map(|s| error(&s.aligned[j][o])),
             });
         }
     }
