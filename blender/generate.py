@@ -1,6 +1,7 @@
 """Generate a synthetic multi-state LightFuse dataset (format ``lightfuse-dataset/1``).
 
-Builds a procedural open room (``--preset bedroom|playroom|livingroom|kitchen|demo``), then
+Builds a procedural open room (``--preset bedroom|playroom|livingroom|kitchen|demo``, or the
+second family's ``study|gallery|workshop``: other shapes, materials and camera paths), then
 renders with Cycles on the CPU:
 
 * K training states (``--states``, default 3): each a new seeded, physically plausible
@@ -54,7 +55,9 @@ import numpy as np  # noqa: E402
 import lfcommon as lf  # noqa: E402
 from lfcommon import UserError  # noqa: E402
 
-PRESET_NAMES = ["bedroom", "playroom", "livingroom", "kitchen", "demo"]
+# The paper-like presets, the demo, and the second family (scenes.FAMILY: other shapes,
+# materials and camera paths, for measuring on scenes nothing was tuned on).
+PRESET_NAMES = ["bedroom", "playroom", "livingroom", "kitchen", "demo", "study", "gallery", "workshop"]
 # Captures are denoised (OpenImageDenoise, guided by albedo and normal) by default: a photograph
 # is nearly noise-free, and 16-spp speckle alone would cap any reconstruction's PSNR against the
 # demo's captures at ~28 dB (measured: raw 16 spp vs 512 spp, covered pixels).
@@ -170,13 +173,55 @@ def make_env(src: str, out_path: str, rng: random.Random, cache: dict) -> dict:
             "scale": scale}
 
 
-def make_cameras(rng: random.Random, n: int, size: float, w: int, h: int, lens: float = 35.0):
-    """n cameras around and above the room, looking at its middle; Blender world matrices."""
+CAMERA_PATHS = ("orbit", "low", "high", "inside")
+
+
+def make_cameras(rng: random.Random, n: int, size: float, w: int, h: int, lens: float = 35.0,
+                 path: str = "orbit", furniture=()):
+    """n cameras looking at the room's middle; Blender world matrices. ``path``: "orbit" around
+    and above the room at 28-62° elevation (the presets'); "low" at 8-18° over the open sides
+    (+x, +y: the walls stand at -x and -y); "high" at 65-82°; "inside" at eye height
+    (1.0-1.6 m) within 0.25-0.6 m of the room's edges, inside it, clear of the furniture
+    (``furniture``: ((x0, x1, y0, y1), top) pairs)."""
     import mathutils
 
+    def look(eye, target):
+        rot = (target - eye).to_track_quat("-Z", "Y").to_matrix().to_4x4()
+        return np.array(mathutils.Matrix.Translation(eye) @ rot)
+
+    if path not in CAMERA_PATHS:
+        raise ValueError(path)
+    if path == "inside":
+        mats = []
+        while len(mats) < n:
+            side = rng.randrange(4)
+            inset = rng.uniform(0.25, 0.6)
+            along = rng.uniform(-size + 0.25, size - 0.25)
+            x, y = [(-size + inset, along), (size - inset, along), (along, -size + inset), (along, size - inset)][side]
+            z = rng.uniform(1.0, 1.6)
+            if any(x0 - 0.15 < x < x1 + 0.15 and y0 - 0.15 < y < y1 + 0.15 and z < top + 0.3
+                   for (x0, x1, y0, y1), top in furniture):
+                continue
+            target = mathutils.Vector((rng.uniform(-0.35, 0.35) * size, rng.uniform(-0.35, 0.35) * size,
+                                       rng.uniform(0.2, 0.6)))
+            mats.append(look(mathutils.Vector((x, y, z)), target))
+        return mats
     vfov = 2 * math.atan(18.0 / lens * h / w)
     radius = size * 1.1
     dist = radius / math.sin(vfov / 2)
+    if path in ("low", "high"):
+        lo, hi = (math.radians(-70), math.radians(160)) if path == "low" else (0.0, 2 * math.pi)
+        el_range = (8, 18) if path == "low" else (65, 82)
+        mats = []
+        for i in range(n):
+            az = lo + (hi - lo) * (i + 0.5 + rng.uniform(-0.3, 0.3)) / n
+            el = math.radians(rng.uniform(*el_range))
+            d = dist * rng.uniform(0.9, 1.1)
+            target = mathutils.Vector((rng.uniform(-0.15, 0.15) * size, rng.uniform(-0.15, 0.15) * size,
+                                       rng.uniform(0.1, 0.35)))
+            eye = target + d * mathutils.Vector((math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)))
+            mats.append(look(eye, target))
+        return mats
     az0 = rng.uniform(0, 2 * math.pi)
     mats = []
     for i in range(n):
@@ -294,7 +339,8 @@ def _run(a, out: str, final: str, t0: float) -> None:
             name = "test0" if is_test else f"state{k}"
             place(arrangements[k])
             rng_cam = random.Random(f"{a.seed}-cams-{k}")
-            cams = make_cameras(rng_cam, a.test_views if is_test else a.views, desc["size"], a.w, a.h)
+            cams = make_cameras(rng_cam, a.test_views if is_test else a.views, desc["size"], a.w, a.h,
+                                path=desc["cameras"], furniture=list(zip(desc["obstacles"], desc["tops"])))
             rng_rot = random.Random(f"{a.seed}-envrot-{k}")
             st = {"name": name, "split": "test" if is_test else "train"}
             envs = test_envs if is_test else [train_envs[k]]

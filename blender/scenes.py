@@ -45,6 +45,14 @@ MATERIALS = {
     "copper": dict(color=(0.95, 0.60, 0.45), roughness=0.35, metallic=1.0),
     "black_plastic": dict(color=(0.03, 0.03, 0.035), roughness=0.3),
     "terracotta": dict(tex="noise", c1=(0.70, 0.32, 0.18), c2=(0.55, 0.24, 0.13), scale=20.0, roughness=0.8),
+    # The second family's (untextured, or a mirror): nothing but shape and shading to go by.
+    "chrome": dict(color=(0.90, 0.90, 0.92), roughness=0.05, metallic=1.0),
+    "clay": dict(color=(0.76, 0.60, 0.48), roughness=0.6),
+    "mint": dict(color=(0.42, 0.74, 0.62), roughness=0.5),
+    "porcelain": dict(color=(0.93, 0.93, 0.95), roughness=0.1),
+    "beech": dict(color=(0.78, 0.62, 0.42), roughness=0.55),
+    "slate": dict(color=(0.24, 0.26, 0.29), roughness=0.7),
+    "concrete": dict(color=(0.52, 0.51, 0.49), roughness=0.85),
 }
 
 
@@ -131,10 +139,27 @@ def _torus(bm, R, r, mat, seg=32, rseg=12):
     return faces
 
 
-def build_mesh(name: str, parts: list) -> bpy.types.Object:
+def _lathe(bm, profile, m, seg=48):
+    """A solid of revolution about +Z: the (r, z) profile (from the axis at the bottom to the
+    axis at the top) spun by Blender's own Spin (what the Screw modifier does), the seam and
+    the poles merged."""
+    verts = [bm.verts.new(m @ mathutils.Vector((r, 0.0, z))) for r, z in profile]
+    edges = [bm.edges.new((a, b)) for a, b in zip(verts, verts[1:])]
+    before = set(bm.faces)
+    bmesh.ops.spin(bm, geom=verts + edges, cent=m @ mathutils.Vector((0, 0, 0)),
+                   axis=(m.to_3x3() @ mathutils.Vector((0, 0, 1))).normalized(), angle=2 * math.pi,
+                   steps=seg, use_merge=True)
+    bmesh.ops.remove_doubles(bm, verts=bm.verts[:], dist=1e-6)
+    return [f for f in bm.faces if f not in before and f.is_valid]
+
+
+def build_mesh(name: str, parts: list, modifiers: list = ()) -> bpy.types.Object:
     """parts: (kind, dict, material name). Kinds: box(size, loc, rot), cyl(r, h, loc, rot)
     (loc = centre of the base), cone(r1, r2, h, loc, rot), sphere(r, loc, scale),
-    torus(R, r, loc, rot).  Curved parts are smooth shaded."""
+    torus(R, r, loc, rot), lathe(profile [(r, z)], loc, rot), monkey(size, loc, rot: Blender's
+    Suzanne, `size` wide, standing on its lowest point), plane(size (w, h), loc, rot: upright in
+    XZ).  Curved parts are smooth shaded. `modifiers`: (Blender modifier type, properties),
+    applied in order to the whole mesh (e.g. BEVEL, SUBSURF, SOLIDIFY)."""
     bm = bmesh.new()
     mats = []
     for kind, p, mname in parts:
@@ -162,6 +187,23 @@ def build_mesh(name: str, parts: list) -> bpy.types.Object:
         elif kind == "torus":
             _torus(bm, p["R"], p["r"], _xf(p.get("loc", (0, 0, 0)), p.get("rot", (0, 0, 0))))
             smooth = True
+        elif kind == "lathe":
+            _lathe(bm, p["profile"], _xf(p.get("loc", (0, 0, 0)), p.get("rot", (0, 0, 0))), p.get("seg", 48))
+            smooth = True
+        elif kind == "monkey":
+            # Suzanne spans 2.73 units in x, faces -Y with +Z up.
+            k = p["size"] / 2.734
+            m = _xf(p.get("loc", (0, 0, 0)), p.get("rot", (0, 0, 0))) @ mathutils.Matrix.Scale(k, 4)
+            new = bmesh.ops.create_monkey(bm, matrix=m)["verts"]
+            low = min(v.co.z for v in new)
+            for v in new:
+                v.co.z -= low - p.get("loc", (0, 0, 0))[2]
+            smooth = True
+        elif kind == "plane":
+            w, h = p["size"]
+            m = _xf(p.get("loc", (0, 0, 0)), p.get("rot", (0, 0, 0)))
+            c = [m @ mathutils.Vector((x * w / 2, 0.0, z)) for x, z in ((-1, 0), (1, 0), (1, h), (-1, h))]
+            bm.faces.new([bm.verts.new(v) for v in c])
         else:
             raise ValueError(kind)
         for f in set(bm.faces) - before:
@@ -174,6 +216,21 @@ def build_mesh(name: str, parts: list) -> bpy.types.Object:
         me.materials.append(make_material(mname))
     ob = bpy.data.objects.new(name, me)
     bpy.context.scene.collection.objects.link(ob)
+    if modifiers:
+        for mtype, props in modifiers:
+            mod = ob.modifiers.new(mtype.lower(), mtype)
+            for k, v in props.items():
+                setattr(mod, k, v)
+        # The evaluated mesh replaces the object's: datasets record plain meshes.
+        ev = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        applied = bpy.data.meshes.new_from_object(ev)
+        ob.modifiers.clear()
+        ob.data = applied
+        bpy.data.meshes.remove(me)
+        # A modifier may lift the lowest point (Subdivision shrinks towards the cage): the
+        # object stands on its base again.
+        low = min(v.co.z for v in applied.vertices)
+        applied.transform(mathutils.Matrix.Translation((0, 0, -low)))
     return ob
 
 
@@ -224,7 +281,34 @@ def obj_parts(kind: str) -> list:
                 ("sphere", dict(r=0.13, loc=(0, 0, 0.24)), "fabric_green")]
     if kind == "cushion":
         return [("box", dict(size=(0.35, 0.35, 0.1), loc=(0, 0, 0.05)), "fabric_green")]
+    # The second family (see FAMILY): Blender's own primitives and modifiers, untextured or chrome.
+    if kind == "monkey":  # no symmetry; untextured: its shape is the only cue
+        return [("monkey", dict(size=0.22, loc=(0, 0, 0), rot=(0, 0, 0)), "clay")]
+    if kind == "chrome_bottle":  # a solid of revolution, a mirror: turning it changes nothing
+        return [("lathe", dict(profile=[(0.0, 0.0), (0.05, 0.0), (0.056, 0.012), (0.056, 0.13), (0.042, 0.17),
+                                        (0.018, 0.2), (0.018, 0.25), (0.0, 0.25)]), "chrome")]
+    if kind == "square_tin":  # four-fold about its axis, and upside down the same (plain, bevelled)
+        return [("box", dict(size=(0.14, 0.14, 0.2), loc=(0, 0, 0.1)), "mint")]
+    if kind == "plate":  # thin: 1.5 cm
+        return [("cyl", dict(r=0.13, h=0.015, loc=(0, 0, 0), seg=48), "porcelain")]
+    if kind == "sign":  # thin (a 1.2 cm panel) standing on a foot; striped front, black back
+        return [("plane", dict(size=(0.24, 0.17), loc=(0, 0, 0.025)), "stripes"),
+                ("box", dict(size=(0.16, 0.08, 0.025), loc=(0, 0, 0.0125)), "black_plastic")]
+    if kind == "rolling_pin":  # lying on its side: a long thin cylinder, handles at both ends
+        return [("cyl", dict(r=0.03, h=0.26, loc=(-0.13, 0, 0.03), rot=(0, math.pi / 2, 0)), "beech"),
+                ("cyl", dict(r=0.013, h=0.07, loc=(-0.2, 0, 0.03), rot=(0, math.pi / 2, 0)), "beech"),
+                ("cyl", dict(r=0.013, h=0.07, loc=(0.13, 0, 0.03), rot=(0, math.pi / 2, 0)), "beech")]
     raise KeyError(kind)
+
+
+# Blender modifiers applied to a kind's mesh (build_mesh's `modifiers`).
+MODIFIERS = {
+    "monkey": [("SUBSURF", dict(levels=1, render_levels=1))],
+    "square_tin": [("BEVEL", dict(width=0.01, segments=3))],
+    # The panel gets its thickness from Solidify (inwards); its back faces take the next
+    # material (the foot's black), so the sign has a front.
+    "sign": [("SOLIDIFY", dict(thickness=0.012, offset=-1.0, material_offset=1))],
+}
 
 
 # Rotations about axes through a point of an object (its origin, the base centre, unless "offset"
@@ -244,6 +328,17 @@ SYMMETRIES = {
     # same; two continuous axes through the centre say so (the error is then measured there).
     "small_ball": [{"axis": [0, 1, 0], "order": 0, "offset": [0, 0.07, 0]},
                    {"axis": [1, 0, 0], "order": 0, "offset": [0, 0.07, 0]}],
+    # The second family. A plain square prism (not a cube) is the same after a quarter turn
+    # about its axis and after a half turn about a horizontal axis through its centre (upside
+    # down), so the axes meet at the centre, 0.1 m up; the rotation group has 8 elements.
+    "chrome_bottle": [{"axis": [0, 1, 0], "order": 0}],
+    "square_tin": [{"axis": [0, 1, 0], "order": 4, "offset": [0, 0.1, 0]},
+                   {"axis": [1, 0, 0], "order": 2, "offset": [0, 0.1, 0]}],
+    "plate": [{"axis": [0, 1, 0], "order": 0, "offset": [0, 0.0075, 0]},
+              {"axis": [1, 0, 0], "order": 2, "offset": [0, 0.0075, 0]}],
+    # Lying along x: any turn about its own long axis, and end for end about the vertical.
+    "rolling_pin": [{"axis": [1, 0, 0], "order": 0, "offset": [0, 0.03, 0]},
+                    {"axis": [0, 1, 0], "order": 2, "offset": [0, 0.03, 0]}],
 }
 
 
@@ -308,6 +403,39 @@ PRESETS = {
 }
 
 
+# The second family: rooms with what the presets above do not have, to measure on scenes
+# nothing was tuned on (issue 15). Shapes from Blender's own primitives and modifiers
+# (Suzanne, a lathed chrome bottle, a bevelled four-fold tin, thin plates, signs and rolling
+# pins), untextured or mirror materials, objects on furniture tops only ("on_furniture"), and
+# other camera paths ("cameras": "low" at 8-18° over the open sides, "high" at 65-82°, "inside"
+# at eye height close to the walls, within the room; the presets above orbit at 28-62°).
+FAMILY = {
+    "study": dict(size=2.0, wall_h=1.3, floor="concrete", wall="wall", cameras="low", on_furniture=True,
+                  furniture=[table("desk", 1.2, 0.6, 0.75, 0.8, -1.6, mat="beech"),
+                             block("bookshelf", 0.4, 1.2, 1.1, -1.75, -0.3, "slate"),
+                             block("ottoman", 0.8, 0.8, 0.45, 0.7, 0.8, "fabric_grey")],
+                  surfaces=["desk", "bookshelf", "ottoman"],
+                  objects=[("monkey", "monkey"), ("square_tin", "square_tin"), ("sign", "sign"),
+                           ("chrome_bottle", "chrome_bottle")]),
+    "gallery": dict(size=2.4, wall_h=1.6, floor="slate", wall="wall", cameras="high", on_furniture=True,
+                    furniture=[block("plinth_a", 0.6, 0.6, 0.9, -1.2, -1.2, "porcelain"),
+                               block("plinth_b", 0.6, 0.6, 0.7, 0.9, -1.3, "porcelain"),
+                               block("plinth_c", 0.6, 0.6, 1.0, -1.3, 0.9, "porcelain"),
+                               block("plinth_d", 0.6, 0.6, 0.55, 0.8, 0.8, "porcelain")],
+                    surfaces=["plinth_a", "plinth_b", "plinth_c", "plinth_d"],
+                    objects=[("chrome_bottle", "chrome_bottle"), ("monkey", "monkey"), ("plate", "plate"),
+                             ("square_tin", "square_tin")]),
+    "workshop": dict(size=1.8, wall_h=1.2, floor="floor_tiles", wall="wall_blue", cameras="inside",
+                     furniture=[table("workbench", 1.4, 0.7, 0.85, 0.1, -1.3, mat="beech"),
+                                block("crate", 0.5, 0.5, 0.5, -1.35, 0.6, "wood"),
+                                block("stool", 0.4, 0.4, 0.45, 0.9, 0.7, "slate")],
+                     surfaces=["workbench", "crate", "stool"],
+                     objects=[("sign", "sign"), ("rolling_pin", "rolling_pin"), ("square_tin", "square_tin"),
+                              ("monkey", "monkey")]),
+}
+PRESETS.update(FAMILY)
+
+
 def build_scene(preset: str) -> dict:
     """Create the static room and the movable objects at the origin.  Returns a description:
     {size, surfaces: {name: (rect, z)}, obstacles: [rect], movables: [(name, object, radius)]}."""
@@ -331,9 +459,11 @@ def build_scene(preset: str) -> dict:
         if name in surf_rects:
             surfaces[name] = (surf_rects[name] or rect, top)
     movables = []
+    if P.get("on_furniture"):
+        del surfaces["floor"]
     for name, kind in P["objects"]:
         parts = obj_parts(kind)
-        ob = build_mesh(name, parts)
+        ob = build_mesh(name, parts, MODIFIERS.get(kind, ()))
         k = P.get("obj_scale", 1.0)
         if k != 1.0:
             ob.data.transform(mathutils.Matrix.Scale(k, 4))
@@ -342,7 +472,8 @@ def build_scene(preset: str) -> dict:
         height = float(co[:, 2].max())
         movables.append((name, ob, radius, height))
     symmetries = {name: SYMMETRIES.get(kind, []) for name, kind in P["objects"]}
-    return dict(size=S, surfaces=surfaces, obstacles=obstacles, movables=movables, symmetries=symmetries)
+    return dict(size=S, surfaces=surfaces, obstacles=obstacles, movables=movables, symmetries=symmetries,
+                cameras=P.get("cameras", "orbit"), tops=[top for *_r, top in P["furniture"]])
 
 
 def _circle_rect_overlap(c, r, rect):
