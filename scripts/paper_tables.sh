@@ -204,6 +204,9 @@ def ablation(title, variants):
     print("| Variant | PSNR | SSIM | rescaled PSNR | SSIM | paper PSNR | SSIM | PSNR change vs full: ours / paper |")
     print("|---|---|---|---|---|---|---|---|")
     for name, folder, paper in variants:
+        if folder is not None and source(f"bedroom/{folder}") is None:
+            print(f"| {name} | not measured yet | | | | {paper[0]:.2f} | {paper[1]:.3f} | |")
+            continue
         row = full if folder is None else ev(f"bedroom/{folder}")["relighting"]["lightfuse"]
         d = row["raw"]["psnr_srgb_db"] - full["raw"]["psnr_srgb_db"]
         dp = paper[0] - variants[0][2][0]
@@ -212,11 +215,33 @@ def ablation(title, variants):
         print(f"| {name} | {fig(row)} | {fig(row, 'rescaled')} | {paper[0]:.2f} | {paper[1]:.3f} | {change} |")
     print()
 
+def refine_figures(title, variants):
+    """Stage 2's own figures (issue 11) for the same rows: from each variant's refine.json."""
+    def rj(folder):
+        path = os.path.join(res, "bedroom" if folder is None else f"bedroom/{folder}", "refine.json")
+        return json.load(open(path)) if os.path.isfile(path) else None
+    print(f"{title}\n")
+    print("| Variant | depth (mm) | normal (deg) | holes | false occlusion | light leaks |")
+    print("|---|---|---|---|---|---|")
+    for name, folder, _paper in variants:
+        r = rj(folder)
+        if r is None:
+            print(f"| {name} | not measured yet | | | | |")
+            continue
+        b, a = r["before"], r["after"]
+        pct = lambda k: f"{100 * b[k]:.2f} -> {100 * a[k]:.2f} %"
+        print(f"| {name} | {1000 * b['depth_median_m']:.1f} -> {1000 * a['depth_median_m']:.1f} | "
+              f"{b['normal_mean_deg']:.1f} -> {a['normal_mean_deg']:.1f} | {pct('holes')} | "
+              f"{pct('false_occlusion')} | {pct('light_leaks')} |")
+    print()
+
+T3 = [("Full", None, (27.212, 0.8684)), ("w/o coverage", "t3-no-coverage", (27.067, 0.8824)),
+      ("w/o scale", "t3-no-scale", (26.476, 0.8597)), ("w/o depth", "t3-no-depth", (20.030, 0.7778)),
+      ("w/o normal", "t3-no-normal", (26.084, 0.8384))]
 if "3" in tables:
-    ablation("Table 3, stage 2's switches on bedroom", [
-        ("Full", None, (27.212, 0.8684)), ("w/o coverage", "t3-no-coverage", (27.067, 0.8824)),
-        ("w/o scale", "t3-no-scale", (26.476, 0.8597)), ("w/o depth", "t3-no-depth", (20.030, 0.7778)),
-        ("w/o normal", "t3-no-normal", (26.084, 0.8384))])
+    ablation("Table 3, stage 2's switches on bedroom", T3)
+    refine_figures("Table 3's rows, stage 2's own figures (stage 1's scene -> refined: median depth error, "
+                   "mean normal error, holes, false occlusion, light leaks; `lightfuse refine`'s report)", T3)
 if "4" in tables:
     ablation("Table 4, stage 3's switches on bedroom", [
         ("Full (8 -> 16 -> 32 spp)", None, (27.212, 0.8684)), ("w/o Cycles-inspired estimator", "t4-naive", (24.789, 0.8630)),
