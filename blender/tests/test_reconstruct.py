@@ -65,13 +65,14 @@ def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):
         assert p["rotation_deg"] <= p["rotation_deg_ignoring_symmetry"] + 1e-6
     # The poses before training are recorded (poses.json) and their errors reported beside the
     # final ones; poses do not move before the fast preset's iteration 1,000, so after 40
-    # iterations the final error is the aligned pose's, field for field.
+    # iterations the final error is the polished pose's, field for field.
     steps = json.loads((work / "poses.json").read_text())
-    assert steps["format"] == "lightfuse-stage1-poses/1" and len(steps["aligned"]) == 2
+    assert steps["format"] == "lightfuse-stage1-poses/2"
+    assert len(steps["aligned"]) == len(steps["polished"]) == 2
     for p in report["pose_errors"]:
         final = {k: p[k] for k in ("rotation_deg", "rotation_deg_ignoring_symmetry", "translation_cm")}
-        assert p["aligned"] == final, p
-        assert "registered" in p, p
+        assert p["polished"] == final, p
+        assert "registered" in p and "aligned" in p, p
     # A comparison image per held-out and per training view.
     assert len(report["heldout"]) == report["heldout_views"]
     for v in report["heldout"]:

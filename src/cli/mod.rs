@@ -778,11 +778,12 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
             )
         };
         for p in &report.pose_errors {
-            let before = match (&p.registered, &p.aligned) {
-                (r, Some(a)) => format!(
-                    " (registered: {}; aligned: {})",
+            let before = match (&p.registered, &p.aligned, &p.polished) {
+                (r, Some(a), Some(q)) => format!(
+                    " (registered: {}; aligned: {}; polished: {})",
                     r.as_ref().map_or("none".into(), brief),
-                    brief(a)
+                    brief(a),
+                    brief(q)
                 ),
                 _ => String::new(),
             };

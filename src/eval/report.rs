@@ -92,13 +92,15 @@ pub struct ObjectPoseError {
     /// The pose the stage ended with.
     #[serde(flatten)]
     pub error: PoseError,
-    /// The same error of the pose point-cloud registration found, and of the one the rendered
-    /// alignment chose and training started from (absent with oracle poses and in work folders
-    /// without `poses.json`): where an error entered.
+    /// The same error of the pose point-cloud registration found, of the one the rendered
+    /// alignment chose, and of that one after the ICP polish, where training started (absent
+    /// with oracle poses and in work folders without `poses.json`): where an error entered.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub registered: Option<PoseError>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub aligned: Option<PoseError>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub polished: Option<PoseError>,
 }
 
 #[cfg(test)]
@@ -139,6 +141,7 @@ mod tests {
             },
             registered: None,
             aligned: None,
+            polished: None,
         };
         let text = serde_json::to_string(&e).expect("serialises");
         assert_eq!(

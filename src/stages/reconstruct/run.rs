@@ -79,18 +79,20 @@ pub struct Report {
     pub oracle_poses: bool,
 }
 
-/// `poses.json`: the poses of each non-reference object, `[j][o]` per training state (the
-/// reference state's identities included), as step 2 found them: by point-cloud registration
-/// (none where it failed) and by the rendered alignment that training starts from.
+/// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
+/// identities included), as step 2 found them: by point-cloud registration (none where it
+/// failed), by the rendered alignment, and after the ICP polish that training starts from.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct PoseSteps {
     pub format: String,
     pub registered: Vec<Vec<Option<Rigid>>>,
     pub aligned: Vec<Vec<Rigid>>,
+    /// The aligned poses after the ICP polish ([`register::polish`]): where training starts.
+    pub polished: Vec<Vec<Rigid>>,
 }
 
 impl PoseSteps {
-    pub const FORMAT: &'static str = "lightfuse-stage1-poses/1";
+    pub const FORMAT: &'static str = "lightfuse-stage1-poses/2";
     pub const FILE: &'static str = "poses.json";
 
     /// The record in `out`, if there is one of `states` x `objects` poses (a record of another
@@ -101,7 +103,8 @@ impl PoseSteps {
         let fits = |lens: Vec<usize>| lens.len() == states && lens.iter().all(|&l| l == objects);
         (p.format == Self::FORMAT
             && fits(p.registered.iter().map(Vec::len).collect())
-            && fits(p.aligned.iter().map(Vec::len).collect()))
+            && fits(p.aligned.iter().map(Vec::len).collect())
+            && fits(p.polished.iter().map(Vec::len).collect()))
         .then_some(p)
     }
 }
@@ -219,132 +222,161 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         })
         .collect();
 
-    let mut trainer =
-        if opts.resume && checkpoint_path(&opts.out).is_file() {
-            let path = checkpoint_path(&opts.out);
-            let t: Trainer = read_checkpoint(&path)?;
-            t.adam.validate(&path)?;
-            let states = train.len();
-            if t.model.poses.len() != states
-                || t.model.colour.len() != states
-                || t.model.components.len() != objects.len() + 1
-                || t.model.components.iter().any(|c| c.sh.len() != states + 1)
-            {
-                return Err(Error::invalid(
-                    &path,
-                    "model",
-                    "expected a checkpoint of this dataset's states and objects",
-                ));
-            }
+    let mut trainer = if opts.resume && checkpoint_path(&opts.out).is_file() {
+        let path = checkpoint_path(&opts.out);
+        let t: Trainer = read_checkpoint(&path)?;
+        t.adam.validate(&path)?;
+        let states = train.len();
+        if t.model.poses.len() != states
+            || t.model.colour.len() != states
+            || t.model.components.len() != objects.len() + 1
+            || t.model.components.iter().any(|c| c.sh.len() != states + 1)
+        {
+            return Err(Error::invalid(
+                &path,
+                "model",
+                "expected a checkpoint of this dataset's states and objects",
+            ));
+        }
+        say(
+            opts.quiet,
+            &format!("resuming at iteration {}", t.iteration),
+        );
+        let mut t = t;
+        // The run's length may be extended (the position schedule keeps its original span).
+        t.settings.iterations = opts.settings.iterations;
+        t
+    } else {
+        // Initialisation (item 2): every training view back-projected.
+        let bopts = init::BackprojectOptions::default();
+        let clouds: Vec<init::PointCloud> =
+            train.iter().map(|v| init::state_cloud(v, &bopts)).collect();
+        // Poses (item 4).
+        let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
+        let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
+            train_states
+                .iter()
+                .map(|&k| {
+                    objects
+                        .iter()
+                        .map(|o| {
+                            let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
+                            let pose = dataset.object_pose(k, &o.name)?;
+                            Ok(pose.compose(&ref_pose.inverse()))
+                        })
+                        .collect::<Result<Vec<_>>>()
+                })
+                .collect::<Result<_>>()?
+        } else {
+            let t = Instant::now();
             say(
                 opts.quiet,
-                &format!("resuming at iteration {}", t.iteration),
+                &format!(
+                    "registering {} objects in {} states (point clouds, then rendered views)",
+                    objects.len(),
+                    train.len()
+                ),
             );
-            let mut t = t;
-            // The run's length may be extended (the position schedule keeps its original span).
-            t.settings.iterations = opts.settings.iterations;
-            t
-        } else {
-            // Initialisation (item 2): every training view back-projected.
-            let bopts = init::BackprojectOptions::default();
-            let clouds: Vec<init::PointCloud> =
-                train.iter().map(|v| init::state_cloud(v, &bopts)).collect();
-            // Poses (item 4).
-            let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
-            let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
-                train_states
+            let reg = register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
+            // The point-cloud registrations are candidates for the analysis-by-synthesis search,
+            // which scores poses by rendering the object into every view of the state.
+            let initial: Vec<Vec<Option<Rigid>>> = reg
+                .iter()
+                .map(|row| row.iter().map(|r| r.map(|r| r.transform)).collect())
+                .collect();
+            let refs = align::median_footprint(&train[0], &ids)
+                .map(|voxel| align::reference_surfels(&train[0], &ids, voxel));
+            let aligned: Vec<Vec<Rigid>> = match refs {
+                Some(refs) => align::object_poses_by_rendering(
+                    &refs,
+                    &ids,
+                    &train,
+                    &initial,
+                    &align::AlignOptions::default(),
+                ),
+                None => initial
                     .iter()
-                    .map(|&k| {
-                        objects
-                            .iter()
-                            .map(|o| {
-                                let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
-                                let pose = dataset.object_pose(k, &o.name)?;
-                                Ok(pose.compose(&ref_pose.inverse()))
-                            })
-                            .collect::<Result<Vec<_>>>()
-                    })
-                    .collect::<Result<_>>()?
-            } else {
-                let t = Instant::now();
-                say(
+                    .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
+                    .collect(),
+            };
+            // The rendered score picks the right basin where point clouds cannot, but
+            // places the object only to ~1 cm and a few degrees (bedroom: registration
+            // 0.02-0.16 cm where it succeeded, its alignment 0.6-2.0 cm): ICP from the
+            // aligned pose polishes it to the clouds' fixed point, if that is near.
+            let polished: Vec<Vec<Rigid>> = aligned
+                .iter()
+                .enumerate()
+                .map(|(j, row)| {
+                    row.iter()
+                        .zip(&ids)
+                        .map(|(pose, &id)| {
+                            if j == 0 {
+                                return *pose;
+                            }
+                            register::polish(
+                                &clouds[0].with_mask(id),
+                                &clouds[j].with_mask(id),
+                                pose,
+                                &register::RegisterOptions::default(),
+                                &register::PolishLimits::default(),
+                            )
+                            .map_or(*pose, |r| r.transform)
+                        })
+                        .collect()
+                })
+                .collect();
+            say(
                     opts.quiet,
                     &format!(
-                        "registering {} objects in {} states (point clouds, then rendered views)",
-                        objects.len(),
-                        train.len()
-                    ),
-                );
-                let reg =
-                    register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
-                // The point-cloud registrations are candidates for the analysis-by-synthesis search,
-                // which scores poses by rendering the object into every view of the state.
-                let initial: Vec<Vec<Option<Rigid>>> = reg
-                    .iter()
-                    .map(|row| row.iter().map(|r| r.map(|r| r.transform)).collect())
-                    .collect();
-                let refs = align::median_footprint(&train[0], &ids)
-                    .map(|voxel| align::reference_surfels(&train[0], &ids, voxel));
-                let aligned: Vec<Vec<Rigid>> = match refs {
-                    Some(refs) => align::object_poses_by_rendering(
-                        &refs,
-                        &ids,
-                        &train,
-                        &initial,
-                        &align::AlignOptions::default(),
-                    ),
-                    None => initial
-                        .iter()
-                        .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
-                        .collect(),
-                };
-                say(
-                    opts.quiet,
-                    &format!(
-                        "registered {} objects in {} states in {:.1} s",
+                        "registered {} objects in {} states in {:.1} s (point clouds, rendered views, ICP polish)",
                         objects.len(),
                         train.len(),
                         t.elapsed().as_secs_f64()
                     ),
                 );
-                crate::stages::common::write_checkpoint(
-                    &opts.out.join(PoseSteps::FILE),
-                    &PoseSteps {
-                        format: PoseSteps::FORMAT.into(),
-                        registered: initial,
-                        aligned: aligned.clone(),
-                    },
-                )?;
-                aligned
-            };
-            let iopts = init::InitOptions {
-                voxel: opts.voxel,
-                ..Default::default()
-            };
-            let mut components = init::initial_components(&clouds, &objects, &poses, &iopts);
-            // Decomposition (item 3) over the reference state.
-            let all = concat(&components);
-            let seg = segment::segment(
-                &segment::SurfelPoints::from_surfels(&all),
-                &train[0],
-                &segment::SegmentParams::default(),
+            crate::stages::common::write_checkpoint(
+                &opts.out.join(PoseSteps::FILE),
+                &PoseSteps {
+                    format: PoseSteps::FORMAT.into(),
+                    registered: initial,
+                    aligned,
+                    polished: polished.clone(),
+                },
             )?;
-            let moved = relabel(&mut components, &seg.labels);
-            say(
-                opts.quiet,
-                &format!(
-            "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
-            all.len(), moved, seg.energy_before, seg.energy_after),
-            );
-            let model = Model::new(
-                components
-                    .iter()
-                    .map(|c| RawComponent::from_component(c, poses.len()))
-                    .collect(),
-                poses,
-            );
-            Trainer::new(opts.settings.clone(), model)
+            polished
         };
+        let iopts = init::InitOptions {
+            voxel: opts.voxel,
+            ..Default::default()
+        };
+        let mut components = init::initial_components(&clouds, &objects, &poses, &iopts);
+        // Decomposition (item 3) over the reference state.
+        let all = concat(&components);
+        let seg = segment::segment(
+            &segment::SurfelPoints::from_surfels(&all),
+            &train[0],
+            &segment::SegmentParams::default(),
+        )?;
+        let moved = relabel(&mut components, &seg.labels);
+        say(
+            opts.quiet,
+            &format!(
+                "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
+                all.len(),
+                moved,
+                seg.energy_before,
+                seg.energy_after
+            ),
+        );
+        let model = Model::new(
+            components
+                .iter()
+                .map(|c| RawComponent::from_component(c, poses.len()))
+                .collect(),
+            poses,
+        );
+        Trainer::new(opts.settings.clone(), model)
+    };
 
     // Training (item 6) with completion (item 5).
     let views: Vec<Vec<&Observation>> = train.iter().map(|v| v.iter().collect()).collect();
@@ -544,6 +576,7 @@ fn evaluate(
                     .and_then(|s| s.registered[j][o].as_ref())
                     .map(error),
                 aligned: steps.as_ref().map(|s| error(&s.aligned[j][o])),
+                polished: steps.as_ref().map(|s| error(&s.polished[j][o])),
             });
         }
     }
