@@ -3,8 +3,11 @@
 //! 1. Read the dataset and every training observation (checked: [`Dataset::training_observations`]);
 //!    every 8th view of each state (index ≡ 0 mod 8, the mip-NeRF 360 convention) is held out.
 //! 2. Back-project the training views ([`init::backproject`]), estimate each object's pose in
-//!    every state from its masked points ([`register::object_poses`]; ground truth only with
-//!    `--oracle-poses`), and build the initial components ([`init::initial_components`]).
+//!    every state: point-cloud registration of its masked points ([`register::object_poses`]),
+//!    whose results are candidates for the rendered alignment ([`align::object_poses_by_rendering`],
+//!    which finds the right basin where clouds cannot), whose poses ICP then polishes
+//!    ([`register::polish`]); ground truth only with `--oracle-poses`. Build the initial
+//!    components ([`init::initial_components`]).
 //! 3. Clean the labels with the graph cut ([`segment::segment`]) over the reference state.
 //! 4. Train ([`train::Trainer`]); at a third of the iterations, seed surfels where the render lies
 //!    behind the captured depth (eq. completion-mask).
@@ -272,7 +275,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
             say(
                 opts.quiet,
                 &format!(
-                    "registering {} objects in {} states (point clouds, then rendered views)",
+                    "registering {} objects in {} states (point clouds, rendered views, ICP polish)",
                     objects.len(),
                     train.len()
                 ),
