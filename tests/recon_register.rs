@@ -108,6 +108,9 @@ enum Shape {
     Vase,
     /// An ellipsoid 0.2 × 0.1 × 0.07 m (semi-axes).
     Ellipsoid,
+    /// A plain (one-colour) square tin, 0.14 × 0.2 × 0.14 m: four-fold about +Y and the same
+    /// upside down, so only its translation is defined.
+    Tin,
 }
 
 /// Point and outward normal at parameters (a, b) ∈ [0, 1)², object frame (base at y = 0).
@@ -135,6 +138,21 @@ fn surface(shape: Shape, a: f32, b: f32) -> (Vec3, Vec3) {
             let ax = Vec3::new(0.2, 0.07, 0.1);
             ((u * ax) + Vec3::new(0.0, 0.07, 0.0), (u / ax).normalize())
         }
+        Shape::Tin => {
+            // a picks the face (six equal sixths) and one coordinate on it, b the other.
+            let f = ((a * 6.0) as usize).min(5);
+            let u = a * 6.0 - f as f32;
+            let (axis, sign) = (f / 2, if f % 2 == 0 { 1.0 } else { -1.0 });
+            let half = Vec3::new(0.07, 0.1, 0.07);
+            let mut p = Vec3::ZERO;
+            let mut n = Vec3::ZERO;
+            p[axis] = sign * half[axis];
+            n[axis] = sign;
+            let (i, j) = ((axis + 1) % 3, (axis + 2) % 3);
+            p[i] = (2.0 * u - 1.0) * half[i];
+            p[j] = (2.0 * b - 1.0) * half[j];
+            (p + Vec3::new(0.0, 0.1, 0.0), n)
+        }
     }
 }
 
@@ -155,6 +173,7 @@ fn observe(
         Shape::Ball => 4.0 * std::f32::consts::PI * 0.15 * 0.15,
         Shape::Vase => std::f32::consts::TAU * 0.09 * 0.35,
         Shape::Ellipsoid => 0.2,
+        Shape::Tin => 4.0 * 0.14 * 0.2 + 2.0 * 0.14 * 0.14,
     };
     let spacing = 0.006;
     let n = (area / (spacing * spacing)) as usize;
@@ -167,7 +186,11 @@ fn observe(
         let noise = (rng.f32() - 0.5) * 0.002 * 3f32.sqrt(); // σ ≈ 0.58 mm, max 1.7 mm
         let p = p + nrm * noise;
         let shade = gain * (0.4 + 0.6 * nrm.dot(light.normalize()).max(0.0));
-        let rgb = texture(p).map(|x| x * shade);
+        let albedo = match shape {
+            Shape::Tin => [0.42, 0.74, 0.62],
+            _ => texture(p),
+        };
+        let rgb = albedo.map(|x| x * shade);
         c.push(
             (q * p + Vec3::from_array(pose.translation)).to_array(),
             (q * nrm).to_array(),
@@ -334,7 +357,7 @@ fn polish_refines_a_rough_pose_and_refuses_a_far_one() {
         let (src, tgt, truth) = pair(shape, seed);
         let start = perturbed(&truth, 5.0, 1.5);
         let (r0, t0) = errors(&start, &truth);
-        let out = polish(&src, &tgt, &start, &opts, &limits).expect("a near start is polished");
+        let out = polish(&src, &tgt, &[start], &opts, &limits).expect("a near start is polished");
         let (rot, t) = errors(&out.transform, &truth);
         eprintln!(
             "{shape:?} seed {seed}: start {r0:.2}° {:.1} mm -> {rot:.2}° {:.1} mm",
@@ -345,16 +368,121 @@ fn polish_refines_a_rough_pose_and_refuses_a_far_one() {
         assert!(rot < r0 && t < t0, "{shape:?}: no closer than the start");
         let far = perturbed(&truth, 60.0, 1.5);
         assert!(
-            polish(&src, &tgt, &far, &opts, &limits).is_none(),
+            polish(&src, &tgt, &[far], &opts, &limits).is_none(),
             "{shape:?}: far start"
         );
+        // A second start beyond the limits of the first is not tried.
+        let both = polish(&src, &tgt, &[start, far], &opts, &limits).expect("the near one");
+        assert_eq!(both, out);
     }
-    assert!(polish(
-        &PointCloud::default(),
-        &PointCloud::default(),
-        &Rigid::IDENTITY,
-        &opts,
-        &limits
-    )
-    .is_none());
+    let none = PointCloud::default();
+    assert!(polish(&none, &none, &[Rigid::IDENTITY], &opts, &limits).is_none());
+    assert!(polish(&none, &none, &[], &opts, &limits).is_none());
+}
+
+/// A plain four-fold tin under a change of lighting, each state seen from all around and
+/// above (as a dataset's state is: every side and the top): no image fixes which quarter turn
+/// (or flip) it made, so registration may return any of its eight symmetric rotations, but the
+/// translation of its centre (where every symmetry axis passes) must be right: it is what
+/// moves the shadow. Within 1° of one symmetric rotation and 5 mm at the centre, for
+/// registration and for the polish from a start 5° and 1.5 cm off. (Seen from two sides only,
+/// as in [`recover`], the score is flat along a slide of the faces and the polish can slide
+/// with it: seed 33 ended 12° off, scoring as well as the truth.)
+#[test]
+fn a_four_fold_tin_gets_its_translation_whatever_turn_is_chosen() {
+    let opts = RegisterOptions::default();
+    let centre = Vec3::new(0.0, 0.1, 0.0);
+    for seed in [13, 23, 33] {
+        let truth = random_pose(&mut SplitMix(seed), false);
+        let up = Vec3::Y; // the truth turns about +Y only: "above" is the same in both frames
+        let src = observe(
+            Shape::Tin,
+            up,
+            Vec3::new(0.3, 1.0, 0.2),
+            1.0,
+            &Rigid::IDENTITY,
+            seed + 1,
+        );
+        let tgt = observe(
+            Shape::Tin,
+            up,
+            Vec3::new(-0.5, 1.0, -0.4),
+            0.6,
+            &truth,
+            seed + 2,
+        );
+        let reg = register(&src, &tgt, &opts).expect("enough points");
+        let start = perturbed(&truth, 5.0, 1.5);
+        let polished = polish(&src, &tgt, &[start], &opts, &PolishLimits::default())
+            .expect("a near start is polished");
+        for (what, est) in [
+            ("registered", reg.transform),
+            ("polished", polished.transform),
+        ] {
+            // The least angle to truth · S over the tin's eight symmetries S (about its centre).
+            let flips = [Quat::IDENTITY, Quat::from_rotation_x(std::f32::consts::PI)];
+            let rot = (0..4)
+                .flat_map(|k| {
+                    flips.map(|f| Quat::from_rotation_y(k as f32 * std::f32::consts::FRAC_PI_2) * f)
+                })
+                .map(|s| est.quat().angle_between(truth.quat() * s).to_degrees())
+                .fold(f32::INFINITY, f32::min);
+            let at = |r: &Rigid| Vec3::from_array(r.transform_point(centre.to_array()));
+            let t = (at(&est) - at(&truth)).length();
+            eprintln!(
+                "tin seed {seed} {what}: {rot:.2}° from a symmetric turn, {:.2} mm at the centre",
+                t * 1e3
+            );
+            assert!(rot < 1.0 && t < 0.005, "seed {seed} {what}: {rot}°, {t} m");
+        }
+    }
+}
+
+/// Registration under a strong change of lighting, each state seen from all around and above
+/// as a dataset's is: the light from opposite sides, a third of the exposure, and a warm
+/// against a cool tint (log chromaticity cancels a per-channel gain; shading is what remains).
+/// Seen this way the textured shapes are pinned to 1° and 5 mm at their centre (issue 15's
+/// figure; [`recover`]'s 3° and 1 cm are for two half views).
+#[test]
+fn registers_under_a_strong_lighting_change_to_one_degree_and_five_mm() {
+    let opts = RegisterOptions::default();
+    for (shape, seed) in [(Shape::Ball, 14), (Shape::Vase, 24), (Shape::Ellipsoid, 34)] {
+        let truth = random_pose(&mut SplitMix(seed), false);
+        let up = Vec3::Y;
+        let tint = |mut c: PointCloud, k: [f32; 3]| {
+            for p in &mut c.rgb {
+                *p = [p[0] * k[0], p[1] * k[1], p[2] * k[2]];
+            }
+            c
+        };
+        let src = tint(
+            observe(
+                shape,
+                up,
+                Vec3::new(1.0, 0.4, 0.2),
+                1.0,
+                &Rigid::IDENTITY,
+                seed + 1,
+            ),
+            [1.2, 1.0, 0.7],
+        );
+        let tgt = tint(
+            observe(
+                shape,
+                up,
+                Vec3::new(-1.0, 0.3, -0.3),
+                0.33,
+                &truth,
+                seed + 2,
+            ),
+            [0.7, 0.9, 1.3],
+        );
+        let reg = register(&src, &tgt, &opts).expect("enough points");
+        let (rot, t) = errors(&reg.transform, &truth);
+        eprintln!("{shape:?} seed {seed}: {rot:.2}°, {:.2} mm", t * 1e3);
+        assert!(
+            rot < 1.0 && t < 0.005,
+            "{shape:?} seed {seed}: {rot}°, {t} m"
+        );
+    }
 }

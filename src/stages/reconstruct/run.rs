@@ -311,15 +311,19 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                 .enumerate()
                 .map(|(j, row)| {
                     row.iter()
-                        .zip(&ids)
-                        .map(|(pose, &id)| {
+                        .enumerate()
+                        .map(|(o, pose)| {
                             if j == 0 {
                                 return *pose;
                             }
+                            // Registration's estimate, where it lies in the basin the
+                            // alignment chose, is a second start.
+                            let starts: Vec<Rigid> =
+                                std::iter::once(*pose).chain(initial[j][o]).collect();
                             register::polish(
-                                &clouds[0].with_mask(id),
-                                &clouds[j].with_mask(id),
-                                pose,
+                                &clouds[0].with_mask(ids[o]),
+                                &clouds[j].with_mask(ids[o]),
+                                &starts,
                                 &register::RegisterOptions::default(),
                                 &register::PolishLimits::default(),
                             )
