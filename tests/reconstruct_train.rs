@@ -323,3 +323,117 @@ fn training_repairs_a_corrupted_reconstruction() {
     );
     assert!(last < 0.5 * first, "loss {first} -> {last}");
 }
+
+/// Labels over training (issue 15): the share of the box's true surface whose nearest surfel
+/// is a box surfel ([`lightfuse::eval::labels::label_shares`]) must not fall while the loop
+/// trains everything, densifies and prunes. Two starts of the moved state's pose: 1.5 cm and
+/// 3° off with pose refinement (the rendered alignment's errors before the polish), and 4 cm
+/// and 8.6° off without it (a pose stage 1 got wrong: the box's surfels are then pulled by two
+/// inconsistent states, where a background could grow into it). The box stands on the floor,
+/// so floor surfels touch its sides. The start is corrupted (colours, centres, opacities) so
+/// every surfel moves.
+#[test]
+fn labels_hold_over_training() {
+    let comps = scene();
+    let truth = Rigid {
+        rotation: Quat::from_rotation_y(0.7).to_array(),
+        translation: [0.3, 0.0, -0.2],
+    };
+    let obs: Vec<Vec<Observation>> = [Rigid::IDENTITY, truth]
+        .iter()
+        .enumerate()
+        .map(|(k, &pose)| {
+            (0..6)
+                .map(|v| {
+                    let a = v as f32 * 1.047 + 0.3 * k as f32;
+                    observe(&comps, pose, k, v, camera(a, 64, 48))
+                })
+                .collect()
+        })
+        .collect();
+    let mut rng = SplitMix(21);
+    let mut bad = comps.clone();
+    for c in &mut bad {
+        let s = &mut c.surfels;
+        for i in 0..s.len() {
+            for k in 0..3 {
+                s.sh[i][k] += rng.range(-0.5, 0.5);
+                s.position[i][k] += rng.range(-0.005, 0.005);
+            }
+            s.opacity[i] *= 0.7;
+        }
+    }
+    let objects = [("box".to_string(), 1)];
+    let reference: Vec<&Observation> = obs[0].iter().collect();
+    let share =
+        |c: &[Component]| lightfuse::eval::labels::label_shares(c, &reference, &objects)[0].1;
+    let near = splat::perturb(&truth, [0.01, 0.0, -0.011], [0.0, 0.052, 0.0]);
+    let far = splat::perturb(&truth, [0.03, 0.0, -0.03], [0.0, 0.15, 0.0]);
+    for (start, pose_from) in [(near, 100), (far, u32::MAX)] {
+        let model = Model::new(
+            bad.iter()
+                .map(|c| RawComponent::from_component(c, 2))
+                .collect(),
+            vec![vec![Rigid::IDENTITY], vec![start]],
+        );
+        let iterations = 600;
+        let settings = Settings {
+            iterations,
+            densify_from: 100,
+            densify_until: 400,
+            densify_every: 100,
+            pose_from,
+            ..Settings::fast()
+        };
+        let mut trainer = Trainer::new(settings, model);
+        let views: Vec<Vec<&Observation>> = obs.iter().map(|v| v.iter().collect()).collect();
+        let mut shares = vec![share(&trainer.model.scene_components())];
+        for it in 1..=iterations {
+            trainer.step(&views);
+            if it % 100 == 0 {
+                shares.push(share(&trainer.model.scene_components()));
+            }
+        }
+        let pose = trainer.model.poses[1][0];
+        eprintln!(
+            "label share every 100 iterations: {shares:.4?}; {} surfels; pose {:.4} m / {:.2}° off",
+            trainer.model.surfel_count(),
+            distance(&pose, &truth),
+            angle_deg(&pose, &truth)
+        );
+        // Measured: 1.0 at the start and 0.9989-1.0 at every checkpoint in both cases (edge
+        // pixels are left out and orientation counts, so the seam is not ambiguous). 1 % below
+        // the start allows a few seam surfels cloned or pruned on either side.
+        for s in &shares {
+            assert!(*s >= shares[0] - 0.01, "label share fell: {shares:?}");
+        }
+        // The measure sees a fall when there is one: the box's lowest 10 cm handed to the floor
+        // (measured 0.868; a fall of 3 points is asked).
+        let mut moved = trainer.model.scene_components();
+        let (floor, boxy) = moved.split_at_mut(1);
+        let (floor, boxy) = (&mut floor[0].surfels, &mut boxy[0].surfels);
+        let stride = floor.sh_stride();
+        for i in 0..boxy.len() {
+            if boxy.position[i][1] < 0.1 {
+                let (p, q) = (boxy.position[i], boxy.rotation[i]);
+                floor.push(
+                    p,
+                    q,
+                    [0.01; 2],
+                    1.0,
+                    &vec![[0.0; 3]; stride],
+                    [0.5; 3],
+                    0.0,
+                    0.5,
+                );
+                boxy.position[i][1] += 100.0;
+            }
+        }
+        let fallen = share(&moved);
+        eprintln!("the lowest 10 cm handed to the floor: share {fallen:.4}");
+        assert!(
+            fallen < shares[0] - 0.03,
+            "a handed-over strip went unseen: {fallen}"
+        );
+    }
+}

@@ -3,6 +3,7 @@
 
 pub mod geometry;
 pub mod html;
+pub mod labels;
 pub mod lighting;
 pub mod metrics;
 pub mod pose;

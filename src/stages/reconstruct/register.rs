@@ -240,6 +240,11 @@ pub struct Registration {
     pub colour_rmse: f32,
     /// The trimmed score that chose this candidate (lower is better).
     pub score: f32,
+    /// Geometry alone, lighting-free: the mean over every source point of r²/τ², r its
+    /// point-to-plane distance to the nearest target point within τ = 2 fine spacings, and 1
+    /// where there is none. 0 is a perfect fit of clouds that overlap wholly; it compares
+    /// poses of one pair of clouds ([`best_fit`]).
+    pub geometric_cost: f32,
     /// The fine point spacing used, metres.
     pub spacing: f32,
 }
@@ -594,6 +599,9 @@ impl Levels {
             }
         }
         let denom = n_in.max(1) as f64;
+        let n = self.src_f.pos.len().max(1) as f64;
+        let geometric_cost =
+            ((geo2 / (inlier as f64).powi(2) + (self.src_f.pos.len() - n_in) as f64) / n) as f32;
         Registration {
             transform: Rigid {
                 rotation: q.normalize().to_array(),
@@ -603,6 +611,7 @@ impl Levels {
             rmse: (geo2 / denom).sqrt() as f32,
             colour_rmse: (col2 / denom).sqrt() as f32,
             score,
+            geometric_cost,
             spacing: self.fine,
         }
     }
@@ -730,9 +739,10 @@ impl Default for PolishLimits {
 /// millimetre. `starts[0]` is that pose and decides the basin: a fixed point beyond `limits`
 /// of it, or fitting worse than it does, is dropped, and so is a further start (e.g. the
 /// registration's own estimate) lying beyond `limits` of it. Of what remains (each start's
-/// fixed point, and the further starts as they are), the lowest registration score wins. Several starts matter where ICP can slide: a plain box seen in
-/// part (`tests/recon_register.rs`) polished from 5° and 1.5 cm off can end 12° off with a
-/// score as good as the truth's, while registration's estimate in the same basin stays put.
+/// fixed point, and the further starts as they are), the lowest registration score wins.
+/// Several starts matter where ICP can slide along a near-symmetry of the shape (a plain box
+/// or tin seen in part): the fixed point reached from a rough start may then fit no better than
+/// registration's estimate, which already lies at the bottom of the same basin and is kept.
 /// `None` when either cloud is too small or nothing remains: keep `starts[0]` then.
 pub fn polish(
     source: &PointCloud,
@@ -780,6 +790,30 @@ pub fn polish(
         .min_by(|a, b| a.score.total_cmp(&b.score))
 }
 
+/// Of `hypotheses` (poses from different basins, each already polished in its own), the one
+/// whose geometry fits best: the lowest [`Registration::geometric_cost`], with its index.
+/// Colour does not vote: under another lighting a chrome object's reflections or a shadow
+/// move across its surface, and the trimmed score's colour term can then prefer a pose turned
+/// upside down. Where two hypotheses differ by a symmetry of the shape the costs tie and
+/// either is right for what follows (the translation is the same). `None` when either cloud is
+/// too small or there is no hypothesis.
+pub fn best_fit(
+    source: &PointCloud,
+    target: &PointCloud,
+    hypotheses: &[Rigid],
+    opts: &RegisterOptions,
+) -> Option<(usize, Registration)> {
+    if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
+        return None;
+    }
+    let lv = Levels::new(source, target, opts);
+    hypotheses
+        .iter()
+        .map(|h| lv.quality(h.quat().normalize(), Vec3::from_array(h.translation), opts))
+        .enumerate()
+        .min_by(|a, b| a.1.geometric_cost.total_cmp(&b.1.geometric_cost))
+}
+
 /// Poses of every object in every state, relative to `states[0]` (the reference state, whose
 /// poses are identity with fitness 1). `states[j]` is the cloud of the j-th training state;
 /// `poses[j][o]` is `None` when object `object_ids[o]` is too sparsely seen in state j or in
@@ -811,6 +845,7 @@ pub fn object_poses(
                             rmse: 0.0,
                             colour_rmse: 0.0,
                             score: 0.0,
+                            geometric_cost: 0.0,
                             spacing: 0.0,
                         });
                     }

@@ -84,13 +84,15 @@ pub struct Report {
 
 /// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
 /// identities included), as step 2 found them: by point-cloud registration (none where it
-/// failed), by the rendered alignment, and after the ICP polish that training starts from.
+/// failed), by the rendered alignment, and where training starts: each of the two polished by
+/// ICP in its own basin, and the better fit of the two ([`register::best_fit`]).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct PoseSteps {
     pub format: String,
     pub registered: Vec<Vec<Option<Rigid>>>,
     pub aligned: Vec<Vec<Rigid>>,
-    /// The aligned poses after the ICP polish ([`register::polish`]): where training starts.
+    /// Where training starts: of the aligned and the registered pose, each polished
+    /// ([`register::polish`]), the better geometric fit ([`register::best_fit`]).
     pub polished: Vec<Vec<Rigid>>,
 }
 
@@ -302,10 +304,15 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                     .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
                     .collect(),
             };
-            // The rendered score picks the right basin where point clouds cannot, but
-            // places the object only to ~1 cm and a few degrees (bedroom: registration
-            // 0.02-0.16 cm where it succeeded, its alignment 0.6-2.0 cm): ICP from the
-            // aligned pose polishes it to the clouds' fixed point, if that is near.
+            // Two hypotheses per object and state, each polished in its own basin by ICP
+            // (`register::polish`): the rendered alignment's pose, which finds the basin
+            // where registration lost the object (study: a thin sign, a chrome bottle upside
+            // down; bedroom: a lamp 65° off) but is biased by ~1-2 cm and a few degrees, and
+            // registration's estimate, right where the alignment's score chose a wrong basin
+            // (study: an untextured Suzanne 136° off). The one whose geometry fits the clouds
+            // best wins (`register::best_fit`; colour does not vote across lightings).
+            let ropts = register::RegisterOptions::default();
+            let limits = register::PolishLimits::default();
             let polished: Vec<Vec<Rigid>> = aligned
                 .iter()
                 .enumerate()
@@ -316,18 +323,24 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                             if j == 0 {
                                 return *pose;
                             }
+                            let src = clouds[0].with_mask(ids[o]);
+                            let tgt = clouds[j].with_mask(ids[o]);
                             // Registration's estimate, where it lies in the basin the
-                            // alignment chose, is a second start.
+                            // alignment chose, is a second start there.
                             let starts: Vec<Rigid> =
                                 std::iter::once(*pose).chain(initial[j][o]).collect();
-                            register::polish(
-                                &clouds[0].with_mask(ids[o]),
-                                &clouds[j].with_mask(ids[o]),
-                                &starts,
-                                &register::RegisterOptions::default(),
-                                &register::PolishLimits::default(),
-                            )
-                            .map_or(*pose, |r| r.transform)
+                            let from_aligned =
+                                register::polish(&src, &tgt, &starts, &ropts, &limits)
+                                    .map_or(*pose, |r| r.transform);
+                            let from_registered = initial[j][o].map(|r| {
+                                register::polish(&src, &tgt, &[r], &ropts, &limits)
+                                    .map_or(r, |p| p.transform)
+                            });
+                            let hypotheses: Vec<Rigid> = std::iter::once(from_aligned)
+                                .chain(from_registered)
+                                .collect();
+                            register::best_fit(&src, &tgt, &hypotheses, &ropts)
+                                .map_or(from_aligned, |(k, _)| hypotheses[k])
                         })
                         .collect()
                 })
@@ -590,31 +603,14 @@ fn evaluate(
 
     // Label shares: true surface points of each object (masked depth, reference state, all its
     // views) against the nearest surfel of the assembled reference state.
-    let comps = model.scene_components();
-    let mut centres: Vec<[f32; 3]> = Vec::new();
-    let mut owner: Vec<u32> = Vec::new();
-    for c in &comps {
-        centres.extend(&c.surfels.position);
-        owner.extend(std::iter::repeat_n(c.id, c.surfels.len()));
-    }
-    let tree = register::KdTree::new(&centres);
-    let mut label_share = Vec::new();
-    for obj in &dataset.objects {
-        let (mut good, mut all) = (0usize, 0usize);
-        for o in train[0].iter().chain(&held[0]) {
-            for (i, &z) in o.depth.iter().enumerate() {
-                if z > 0.0 && o.mask[i] as u32 == obj.id {
-                    let (x, y) = (i % o.camera.w as usize, i / o.camera.w as usize);
-                    let p = init::pixel_to_world(&o.camera, x, y, z);
-                    if let Some((n, _)) = tree.nearest(&p) {
-                        all += 1;
-                        good += (owner[n] == obj.id) as usize;
-                    }
-                }
-            }
-        }
-        label_share.push((obj.name.clone(), good as f64 / all.max(1) as f64));
-    }
+    let views: Vec<&Observation> = train[0].iter().chain(&held[0]).collect();
+    let objects: Vec<(String, u32)> = dataset
+        .objects
+        .iter()
+        .map(|o| (o.name.clone(), o.id))
+        .collect();
+    let label_share =
+        crate::eval::labels::label_shares(&model.scene_components(), &views, &objects);
     Ok(Report {
         dataset: dataset.file.display().to_string(),
         iterations: opts.settings.iterations,
