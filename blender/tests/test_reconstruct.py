@@ -64,8 +64,8 @@ def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):
     for p in report["pose_errors"]:
         assert p["rotation_deg"] <= p["rotation_deg_ignoring_symmetry"] + 1e-6
     # The poses before training are recorded (poses.json) and their errors reported beside the
-    # final ones; poses do not move before the fast preset's iteration 1,000, so after 40
-    # iterations the final error is the polished pose's, field for field.
+    # final ones; the fast preset's training does not move poses (its pose refinement is off:
+    # `train::Settings::fast`), so the final error is the polished pose's, field for field.
     steps = json.loads((work / "poses.json").read_text())
     assert steps["format"] == "lightfuse-stage1-poses/2"
     assert len(steps["aligned"]) == len(steps["polished"]) == 2
