@@ -139,22 +139,32 @@ fn distance(a: &Rigid, b: &Rigid) -> f32 {
     (Vec3::from_array(a.translation) - Vec3::from_array(b.translation)).length()
 }
 
-#[test]
-fn poses_are_recovered_from_splatting_gradients() {
-    let comps = scene();
+/// The box's pose in state 1 (state 0 is the reference), and six views of each state around
+/// the scene at 64×48; state k's cameras turned by `turn`·k radians from state 0's.
+fn two_states(comps: &[Component], turn: f32) -> (Rigid, Vec<Vec<Observation>>) {
     let truth = Rigid {
         rotation: Quat::from_rotation_y(0.7).to_array(),
         translation: [0.3, 0.0, -0.2],
     };
-    let obs: Vec<Vec<Observation>> = [Rigid::IDENTITY, truth]
+    let obs = [Rigid::IDENTITY, truth]
         .iter()
         .enumerate()
         .map(|(k, &pose)| {
             (0..6)
-                .map(|v| observe(&comps, pose, k, v, camera(v as f32 * 1.047, 64, 48)))
+                .map(|v| {
+                    let a = v as f32 * 1.047 + turn * k as f32;
+                    observe(comps, pose, k, v, camera(a, 64, 48))
+                })
                 .collect()
         })
         .collect();
+    (truth, obs)
+}
+
+#[test]
+fn poses_are_recovered_from_splatting_gradients() {
+    let comps = scene();
+    let (truth, obs) = two_states(&comps, 0.0);
     let start = splat::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
     let (e_t0, e_r0) = (distance(&start, &truth), angle_deg(&start, &truth));
     let model = Model::new(
@@ -335,22 +345,7 @@ fn training_repairs_a_corrupted_reconstruction() {
 #[test]
 fn labels_hold_over_training() {
     let comps = scene();
-    let truth = Rigid {
-        rotation: Quat::from_rotation_y(0.7).to_array(),
-        translation: [0.3, 0.0, -0.2],
-    };
-    let obs: Vec<Vec<Observation>> = [Rigid::IDENTITY, truth]
-        .iter()
-        .enumerate()
-        .map(|(k, &pose)| {
-            (0..6)
-                .map(|v| {
-                    let a = v as f32 * 1.047 + 0.3 * k as f32;
-                    observe(&comps, pose, k, v, camera(a, 64, 48))
-                })
-                .collect()
-        })
-        .collect();
+    let (truth, obs) = two_states(&comps, 0.3);
     let mut rng = SplitMix(21);
     let mut bad = comps.clone();
     for c in &mut bad {
