@@ -327,7 +327,7 @@ fn perturbed(truth: &Rigid, deg: f32, cm: f32) -> Rigid {
     }
 }
 
-/// Choosing between basins ([`best_fit`], what stage 1 does between the rendered alignment's
+/// Choosing between basins ([`Pair::best_fit`], what stage 1 does between the rendered alignment's
 /// polished pose and registration's): the hypothesis near the truth wins against one 60° off
 /// (in either order), and colour has no say: with the target's colours replaced by noise (a
 /// chrome object's reflections under another light are no better) the choice and its cost
@@ -337,21 +337,18 @@ fn best_fit_picks_the_basin_by_geometry_alone() {
     let opts = RegisterOptions::default();
     for (shape, seed) in [(Shape::Ball, 10), (Shape::Vase, 11), (Shape::Ellipsoid, 12)] {
         let (src, tgt, truth) = pair(shape, false, seed);
-        let near = polish(
-            &src,
-            &tgt,
-            &[perturbed(&truth, 3.0, 0.5)],
-            &opts,
-            &PolishLimits::default(),
-        )
-        .expect("near start")
-        .transform;
+        let clouds = Pair::new(&src, &tgt, &opts).expect("enough points");
+        let near = clouds
+            .polish(&[perturbed(&truth, 3.0, 0.5)], &PolishLimits::default())
+            .expect("near start")
+            .transform;
         let far = perturbed(&truth, 60.0, 1.5);
-        let (k, fit) = best_fit(&src, &tgt, &[far, near], &opts).expect("two hypotheses");
+        let (k, fit) = clouds.best_fit(&[far, near]).expect("two hypotheses");
         assert_eq!(k, 1, "{shape:?}: picked the far hypothesis");
-        let (k2, _) = best_fit(&src, &tgt, &[near, far], &opts).unwrap();
+        let (k2, _) = clouds.best_fit(&[near, far]).unwrap();
         assert_eq!(k2, 0, "{shape:?}: order matters");
-        let at_far = evaluate(&src, &tgt, &far, &opts).unwrap();
+        let at_far = clouds.evaluate(&far);
+        assert_eq!(Some(at_far), evaluate(&src, &tgt, &far, &opts));
         eprintln!(
             "{shape:?}: geometric cost near {:.4}, 60° off {:.4}",
             fit.geometric_cost, at_far.geometric_cost
@@ -366,7 +363,10 @@ fn best_fit_picks_the_basin_by_geometry_alone() {
                 rng.range(0.01, 1.0),
             ];
         }
-        let (k3, fit3) = best_fit(&src, &noisy, &[far, near], &opts).unwrap();
+        let (k3, fit3) = Pair::new(&src, &noisy, &opts)
+            .unwrap()
+            .best_fit(&[far, near])
+            .unwrap();
         assert_eq!((k3, fit3.geometric_cost), (1, fit.geometric_cost));
         assert_ne!(
             fit3.score, fit.score,
@@ -374,9 +374,12 @@ fn best_fit_picks_the_basin_by_geometry_alone() {
         );
     }
     let none = PointCloud::default();
-    assert!(best_fit(&none, &none, &[Rigid::IDENTITY], &opts).is_none());
+    assert!(Pair::new(&none, &none, &opts).is_none());
     let (src, tgt, _) = pair(Shape::Ball, false, 10);
-    assert!(best_fit(&src, &tgt, &[], &opts).is_none());
+    assert!(Pair::new(&src, &tgt, &opts)
+        .unwrap()
+        .best_fit(&[])
+        .is_none());
 }
 
 /// The polish (ICP from a rough pose, as stage 1 applies to the rendered alignment's) brings a
@@ -391,7 +394,10 @@ fn polish_refines_a_rough_pose_and_refuses_a_far_one() {
         let (src, tgt, truth) = pair(shape, false, seed);
         let start = perturbed(&truth, 5.0, 1.5);
         let (r0, t0) = errors(&start, &truth);
-        let out = polish(&src, &tgt, &[start], &opts, &limits).expect("a near start is polished");
+        let clouds = Pair::new(&src, &tgt, &opts).expect("enough points");
+        let out = clouds
+            .polish(&[start], &limits)
+            .expect("a near start is polished");
         let (rot, t) = errors(&out.transform, &truth);
         eprintln!(
             "{shape:?} seed {seed}: start {r0:.2}° {:.1} mm -> {rot:.2}° {:.1} mm",
@@ -402,16 +408,18 @@ fn polish_refines_a_rough_pose_and_refuses_a_far_one() {
         assert!(rot < r0 && t < t0, "{shape:?}: no closer than the start");
         let far = perturbed(&truth, 60.0, 1.5);
         assert!(
-            polish(&src, &tgt, &[far], &opts, &limits).is_none(),
+            clouds.polish(&[far], &limits).is_none(),
             "{shape:?}: far start"
         );
         // A second start beyond the limits of the first is not tried.
-        let both = polish(&src, &tgt, &[start, far], &opts, &limits).expect("the near one");
+        let both = clouds.polish(&[start, far], &limits).expect("the near one");
         assert_eq!(both, out);
     }
-    let none = PointCloud::default();
-    assert!(polish(&none, &none, &[Rigid::IDENTITY], &opts, &limits).is_none());
-    assert!(polish(&none, &none, &[], &opts, &limits).is_none());
+    let (src, tgt, _) = pair(Shape::Ball, false, 10);
+    assert!(Pair::new(&src, &tgt, &opts)
+        .unwrap()
+        .polish(&[], &limits)
+        .is_none());
 }
 
 /// A plain four-fold tin under a change of lighting, each state seen from all around and
@@ -445,9 +453,12 @@ fn a_four_fold_tin_gets_its_translation_whatever_turn_is_chosen() {
             &truth,
             seed + 2,
         );
-        let reg = register(&src, &tgt, &opts).expect("enough points");
+        let clouds = Pair::new(&src, &tgt, &opts).expect("enough points");
+        let reg = clouds.register();
+        assert_eq!(Some(reg), register(&src, &tgt, &opts));
         let start = perturbed(&truth, 5.0, 1.5);
-        let polished = polish(&src, &tgt, &[start], &opts, &PolishLimits::default())
+        let polished = clouds
+            .polish(&[start], &PolishLimits::default())
             .expect("a near start is polished");
         for (what, est) in [
             ("registered", reg.transform),

@@ -181,7 +181,7 @@ impl<const K: usize> KdTree<K> {
 // ---------------------------------------------------------------------------------------------
 // Registration
 
-/// Options of [`register`].
+/// Options of a [`Pair`] (and of [`register`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RegisterOptions {
     /// Seed of the coarse point sample.
@@ -243,7 +243,7 @@ pub struct Registration {
     /// Geometry alone, lighting-free: the mean over every source point of r²/τ², r its
     /// point-to-plane distance to the nearest target point within τ = 2 fine spacings, and 1
     /// where there is none. 0 is a perfect fit of clouds that overlap wholly; it compares
-    /// poses of one pair of clouds ([`best_fit`]).
+    /// poses of one pair of clouds ([`Pair::best_fit`]).
     pub geometric_cost: f32,
     /// The fine point spacing used, metres.
     pub spacing: f32,
@@ -415,19 +415,9 @@ pub const OUTLIER_COST: f32 = 16.0;
 pub const MISS_COST: f32 = 4.0;
 
 /// One ICP level: Gauss–Newton on (ω, δt) with joint position–colour correspondences.
-fn icp(
-    src: &Side,
-    tgt: &Side,
-    mut q: DQuat,
-    mut t: DVec3,
-    spacing: f32,
-    opts: &RegisterOptions,
-) -> (DQuat, DVec3) {
-    let w = opts.colour_weight * spacing;
-    let joint: Vec<[f32; 6]> = (0..tgt.pos.len())
-        .map(|j| tgt.joint(j, tgt.pos[j], w))
-        .collect();
-    let tree = KdTree::new(&joint);
+fn icp(level: &Level, mut q: DQuat, mut t: DVec3, opts: &RegisterOptions) -> (DQuat, DVec3) {
+    let (src, tgt, spacing, tree) = (&level.src, &level.tgt, level.spacing, &level.joint);
+    let w = level.colour_scale;
     // Matches farther than this are not the same surface.
     let gate = 4.0 * spacing;
     for _ in 0..opts.icp_iterations {
@@ -536,24 +526,65 @@ fn bbox_diagonal(c: &PointCloud) -> f32 {
     (hi - lo).length()
 }
 
-/// Both clouds at the coarse and the fine level.
-struct Levels {
-    /// Geometric scale of the coarse level (score, gates), metres.
-    coarse: f32,
-    fine: f32,
-    src_c: Side,
-    tgt_c: Side,
-    src_f: Side,
-    tgt_f: Side,
+/// One level of a [`Pair`]: both clouds thinned at half its scale, and the target's two k-d
+/// trees (positions for scores and fit quality; joint position–colour points for ICP), built
+/// once for every pose asked of the pair.
+struct Level {
+    /// Geometric scale (scores, gates), metres.
+    spacing: f32,
+    /// Length of one unit of colour feature in the joint space: `colour_weight` spacings.
+    colour_scale: f32,
+    src: Side,
+    tgt: Side,
+    geo: KdTree<3>,
+    joint: KdTree<6>,
 }
 
-impl Levels {
-    /// The coarse scale is the larger of `coarse_spacing` × the bounding-box diagonal and the
-    /// median pixel footprint (nearest neighbours are that far apart even when aligned); the
-    /// fine scale is half of it. Clouds are thinned at half a level's scale, which keeps nearly
-    /// every observed point at the fine level.
-    fn new(source: &PointCloud, target: &PointCloud, opts: &RegisterOptions) -> Levels {
-        let diag = bbox_diagonal(source).max(bbox_diagonal(target));
+impl Level {
+    fn new(source: &PointCloud, target: &PointCloud, spacing: f32, opts: &RegisterOptions) -> Self {
+        let src = Side::new(source, spacing / 2.0);
+        let tgt = Side::new(target, spacing / 2.0);
+        let colour_scale = opts.colour_weight * spacing;
+        let joint: Vec<[f32; 6]> = (0..tgt.pos.len())
+            .map(|j| tgt.joint(j, tgt.pos[j], colour_scale))
+            .collect();
+        Level {
+            spacing,
+            colour_scale,
+            geo: tgt.geo_tree(),
+            joint: KdTree::new(&joint),
+            src,
+            tgt,
+        }
+    }
+}
+
+/// One object's points in two states (source: the reference state; target: state k), prepared
+/// once for every question stage 1 asks of them: a global [`Pair::register`], the
+/// [`Pair::polish`] of a pose found otherwise, the [`Pair::best_fit`] of several hypotheses,
+/// the [`Pair::evaluate`] of any pose. Thinning both clouds at two levels and building the
+/// target's trees is then done once per pair, not once per question (and per ICP run).
+pub struct Pair {
+    coarse: Level,
+    fine: Level,
+    /// The source cloud's centroid and bounding-box diagonal, metres ([`PolishLimits`]).
+    centroid: Vec3,
+    diagonal: f32,
+    opts: RegisterOptions,
+}
+
+impl Pair {
+    /// `None` when either cloud has fewer than [`MIN_POINTS`] points. The coarse scale is the
+    /// larger of `coarse_spacing` × the bounding-box diagonal and the median pixel footprint
+    /// (nearest neighbours are that far apart even when aligned); the fine scale is half of it.
+    /// Clouds are thinned at half a level's scale, which keeps nearly every observed point at
+    /// the fine level.
+    pub fn new(source: &PointCloud, target: &PointCloud, opts: &RegisterOptions) -> Option<Pair> {
+        if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
+            return None;
+        }
+        let diagonal = bbox_diagonal(source);
+        let diag = diagonal.max(bbox_diagonal(target));
         let footprint = median(
             source
                 .footprint
@@ -563,153 +594,211 @@ impl Levels {
                 .collect(),
         );
         let coarse = (diag * opts.coarse_spacing).max(footprint).max(1e-6);
-        let fine = coarse / 2.0;
-        Levels {
-            coarse,
-            fine,
-            src_c: Side::new(source, coarse / 2.0),
-            tgt_c: Side::new(target, coarse / 2.0),
-            src_f: Side::new(source, fine / 2.0),
-            tgt_f: Side::new(target, fine / 2.0),
-        }
+        let centroid = source
+            .position
+            .iter()
+            .fold(Vec3::ZERO, |a, p| a + Vec3::from_array(*p))
+            / source.len() as f32;
+        Some(Pair {
+            coarse: Level::new(source, target, coarse, opts),
+            fine: Level::new(source, target, coarse / 2.0, opts),
+            centroid,
+            diagonal,
+            opts: *opts,
+        })
+    }
+
+    /// ICP at the coarse, then the fine level from (q, t), and the fit quality reached.
+    fn refine(&self, q: DQuat, t: DVec3) -> Registration {
+        let (q, t) = icp(&self.coarse, q, t, &self.opts);
+        let (q, t) = icp(&self.fine, q, t, &self.opts);
+        self.quality(q.as_quat(), t.as_vec3())
     }
 
     /// Score and fit quality of (q, t) on the fine level.
-    fn quality(&self, q: Quat, t: Vec3, opts: &RegisterOptions) -> Registration {
-        let tree = self.tgt_f.geo_tree();
-        let all: Vec<usize> = (0..self.src_f.pos.len()).collect();
+    fn quality(&self, q: Quat, t: Vec3) -> Registration {
+        let lv = &self.fine;
+        let all: Vec<usize> = (0..lv.src.pos.len()).collect();
         let scorer = Scorer {
-            src: &self.src_f,
-            tgt: &self.tgt_f,
-            tree: &tree,
+            src: &lv.src,
+            tgt: &lv.tgt,
+            tree: &lv.geo,
             sample: &all,
-            spacing: self.fine,
-            opts,
+            spacing: lv.spacing,
+            opts: &self.opts,
         };
         let score = scorer.score(q, t, &all);
-        let inlier = 2.0 * self.fine;
+        let inlier = 2.0 * lv.spacing;
         let mut n_in = 0usize;
         let (mut geo2, mut col2) = (0.0f64, 0.0f64);
-        for i in 0..self.src_f.pos.len() {
-            let p = q * self.src_f.pos[i] + t;
-            if let Some((j, _)) = tree.nearest_within(&p.to_array(), inlier * inlier) {
+        for i in 0..lv.src.pos.len() {
+            let p = q * lv.src.pos[i] + t;
+            if let Some((j, _)) = lv.geo.nearest_within(&p.to_array(), inlier * inlier) {
                 n_in += 1;
-                geo2 += (self.tgt_f.normal[j].dot(p - self.tgt_f.pos[j]) as f64).powi(2);
-                col2 += (self.src_f.feat[i] - self.tgt_f.feat[j]).length_squared() as f64;
+                geo2 += (lv.tgt.normal[j].dot(p - lv.tgt.pos[j]) as f64).powi(2);
+                col2 += (lv.src.feat[i] - lv.tgt.feat[j]).length_squared() as f64;
             }
         }
         let denom = n_in.max(1) as f64;
-        let n = self.src_f.pos.len().max(1) as f64;
+        let n = lv.src.pos.len().max(1) as f64;
         let geometric_cost =
-            ((geo2 / (inlier as f64).powi(2) + (self.src_f.pos.len() - n_in) as f64) / n) as f32;
+            ((geo2 / (inlier as f64).powi(2) + (lv.src.pos.len() - n_in) as f64) / n) as f32;
         Registration {
             transform: Rigid {
                 rotation: q.normalize().to_array(),
                 translation: t.to_array(),
             },
-            fitness: n_in as f32 / self.src_f.pos.len().max(1) as f32,
+            fitness: n_in as f32 / lv.src.pos.len().max(1) as f32,
             rmse: (geo2 / denom).sqrt() as f32,
             colour_rmse: (col2 / denom).sqrt() as f32,
             score,
             geometric_cost,
-            spacing: self.fine,
+            spacing: lv.spacing,
         }
+    }
+
+    /// The fit quality of a given transform, as [`Pair::register`] reports it (for
+    /// diagnostics and for comparing estimates).
+    pub fn evaluate(&self, transform: &Rigid) -> Registration {
+        self.quality(
+            transform.quat().normalize(),
+            Vec3::from_array(transform.translation),
+        )
+    }
+
+    /// Estimates T mapping the source onto the target (see the module docs): the global search
+    /// over the rotation grid, then ICP from the best few distinct rotations; the lowest fine
+    /// score wins.
+    pub fn register(&self) -> Registration {
+        let (lv, opts) = (&self.coarse, &self.opts);
+        let mut rng = SplitMix(opts.seed);
+        let mut sample: Vec<usize> = (0..lv.src.pos.len()).collect();
+        for i in (1..sample.len()).rev() {
+            let j = (rng.next_u64() % (i as u64 + 1)) as usize;
+            sample.swap(i, j);
+        }
+        sample.truncate(opts.coarse_samples.max(MIN_POINTS));
+        sample.sort_unstable();
+        let scorer = Scorer {
+            src: &lv.src,
+            tgt: &lv.tgt,
+            tree: &lv.geo,
+            sample: &sample,
+            spacing: lv.spacing,
+            opts,
+        };
+        let grid = rotation_grid(opts.rotation_step_deg);
+        let mut scored: Vec<(f32, usize, Vec3)> = grid
+            .par_iter()
+            .enumerate()
+            .map(|(r, q)| {
+                let (t, s) = scorer.fit_translation(*q);
+                (s, r, t)
+            })
+            .collect();
+        scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        // Distinct candidates: farther apart than one grid step in rotation.
+        let min_sep = opts.rotation_step_deg.to_radians();
+        let mut cands: Vec<(Quat, Vec3)> = Vec::new();
+        for &(_, r, t) in &scored {
+            if cands.len() >= opts.candidates.max(1) {
+                break;
+            }
+            if cands
+                .iter()
+                .all(|(q, _)| q.angle_between(grid[r]) > min_sep)
+            {
+                cands.push((grid[r], t));
+            }
+        }
+        // The grid is never empty (+Y with one turn at least), so neither are the candidates.
+        cands
+            .iter()
+            .map(|&(q, t)| self.refine(q.as_dquat(), t.as_dvec3()))
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+            .unwrap_or_else(|| self.evaluate(&Rigid::IDENTITY))
+    }
+
+    /// ICP (coarse, then fine level; no global search) from each of `starts`, for a pose
+    /// another method found roughly: the rendered alignment of [`super::align`], whose score
+    /// picks the right basin where point clouds cannot but is too blunt to place an object to
+    /// the millimetre. `starts[0]` is that pose and decides the basin: a fixed point beyond
+    /// `limits` of it, or fitting worse than it does, is dropped, and so is a further start
+    /// (e.g. the registration's own estimate) lying beyond `limits` of it. Of what remains
+    /// (each start's fixed point, and the further starts as they are), the lowest registration
+    /// score wins. Several starts matter where ICP can slide along a near-symmetry of the shape
+    /// (a plain box or tin seen in part): the fixed point reached from a rough start may then
+    /// fit no better than registration's estimate, which already lies at the bottom of the
+    /// same basin and is kept. `None` when nothing remains (or there is no start): keep
+    /// `starts[0]` then.
+    pub fn polish(&self, starts: &[Rigid], limits: &PolishLimits) -> Option<Registration> {
+        let first = starts.first()?;
+        let q0 = first.quat().normalize();
+        let start = self.evaluate(first);
+        let reach = limits.translation * self.diagonal;
+        let c = self.centroid.to_array();
+        let near = |r: &Rigid| {
+            let moved = (Vec3::from_array(r.transform_point(c))
+                - Vec3::from_array(first.transform_point(c)))
+            .length();
+            r.quat().angle_between(q0).to_degrees() <= limits.rotation_deg && moved <= reach
+        };
+        starts
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| near(s))
+            .flat_map(|(k, s)| {
+                let polished = self.refine(
+                    s.quat().normalize().as_dquat(),
+                    Vec3::from_array(s.translation).as_dvec3(),
+                );
+                // A further start (registration's) is a fixed point of the fine level already,
+                // which the coarse level can pull away from: it competes as it is too.
+                let kept = (k > 0).then(|| self.evaluate(s));
+                std::iter::once(polished).chain(kept)
+            })
+            .filter(|r| near(&r.transform) && r.fitness >= limits.fitness * start.fitness)
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+    }
+
+    /// Of `hypotheses` (poses from different basins, each already polished in its own), the
+    /// one whose geometry fits best: the lowest [`Registration::geometric_cost`], with its
+    /// index. Colour does not vote: under another lighting a chrome object's reflections or a
+    /// shadow move across its surface, and the trimmed score's colour term can then prefer a
+    /// pose turned upside down. Where two hypotheses differ by a symmetry of the shape the
+    /// costs tie and either is right for what follows (the translation is the same). `None`
+    /// when there is no hypothesis.
+    pub fn best_fit(&self, hypotheses: &[Rigid]) -> Option<(usize, Registration)> {
+        hypotheses
+            .iter()
+            .map(|h| self.evaluate(h))
+            .enumerate()
+            .min_by(|a, b| a.1.geometric_cost.total_cmp(&b.1.geometric_cost))
     }
 }
 
-/// The fit quality of a given transform, as [`register`] reports it (for diagnostics and for
-/// comparing estimates). `None` when either cloud has fewer than [`MIN_POINTS`] points.
+/// [`Pair::evaluate`] of a given transform. `None` when either cloud has fewer than
+/// [`MIN_POINTS`] points.
 pub fn evaluate(
     source: &PointCloud,
     target: &PointCloud,
     transform: &Rigid,
     opts: &RegisterOptions,
 ) -> Option<Registration> {
-    if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
-        return None;
-    }
-    let lv = Levels::new(source, target, opts);
-    Some(lv.quality(
-        transform.quat().normalize(),
-        Vec3::from_array(transform.translation),
-        opts,
-    ))
+    Some(Pair::new(source, target, opts)?.evaluate(transform))
 }
 
-/// Estimates T mapping `source` onto `target` (see the module docs). `None` when either cloud
-/// has fewer than [`MIN_POINTS`] points.
+/// [`Pair::register`]: T mapping `source` onto `target`. `None` when either cloud has fewer
+/// than [`MIN_POINTS`] points.
 pub fn register(
     source: &PointCloud,
     target: &PointCloud,
     opts: &RegisterOptions,
 ) -> Option<Registration> {
-    if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
-        return None;
-    }
-    let lv = Levels::new(source, target, opts);
-
-    // Global search over the rotation grid.
-    let tree_c = lv.tgt_c.geo_tree();
-    let mut rng = SplitMix(opts.seed);
-    let mut sample: Vec<usize> = (0..lv.src_c.pos.len()).collect();
-    for i in (1..sample.len()).rev() {
-        let j = (rng.next_u64() % (i as u64 + 1)) as usize;
-        sample.swap(i, j);
-    }
-    sample.truncate(opts.coarse_samples.max(MIN_POINTS));
-    sample.sort_unstable();
-    let scorer = Scorer {
-        src: &lv.src_c,
-        tgt: &lv.tgt_c,
-        tree: &tree_c,
-        sample: &sample,
-        spacing: lv.coarse,
-        opts,
-    };
-    let grid = rotation_grid(opts.rotation_step_deg);
-    let mut scored: Vec<(f32, usize, Vec3)> = grid
-        .par_iter()
-        .enumerate()
-        .map(|(r, q)| {
-            let (t, s) = scorer.fit_translation(*q);
-            (s, r, t)
-        })
-        .collect();
-    scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    // Distinct candidates: farther apart than one grid step in rotation.
-    let min_sep = opts.rotation_step_deg.to_radians();
-    let mut cands: Vec<(Quat, Vec3)> = Vec::new();
-    for &(_, r, t) in &scored {
-        if cands.len() >= opts.candidates.max(1) {
-            break;
-        }
-        if cands
-            .iter()
-            .all(|(q, _)| q.angle_between(grid[r]) > min_sep)
-        {
-            cands.push((grid[r], t));
-        }
-    }
-
-    // Refinement of each candidate; the lowest fine score wins.
-    cands
-        .iter()
-        .map(|&(q, t)| {
-            let (q, t) = icp(
-                &lv.src_c,
-                &lv.tgt_c,
-                q.as_dquat(),
-                t.as_dvec3(),
-                lv.coarse,
-                opts,
-            );
-            let (q, t) = icp(&lv.src_f, &lv.tgt_f, q, t, lv.fine, opts);
-            lv.quality(q.as_quat(), t.as_vec3(), opts)
-        })
-        .min_by(|a, b| a.score.total_cmp(&b.score))
+    Some(Pair::new(source, target, opts)?.register())
 }
 
-/// How far [`polish`] may move a pose: a local refinement inside the ICP basin (~20° on
+/// How far [`Pair::polish`] may move a pose: a local refinement inside the ICP basin (~20° on
 /// textured shapes, see [`RegisterOptions::rotation_step_deg`]), not a new search.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PolishLimits {
@@ -733,96 +822,15 @@ impl Default for PolishLimits {
     }
 }
 
-/// ICP (coarse, then fine level; no global search) from each of `starts`, for a pose another
-/// method found roughly: the rendered alignment of [`super::align`], whose score picks the
-/// right basin where point clouds cannot but is too blunt to place an object to the
-/// millimetre. `starts[0]` is that pose and decides the basin: a fixed point beyond `limits`
-/// of it, or fitting worse than it does, is dropped, and so is a further start (e.g. the
-/// registration's own estimate) lying beyond `limits` of it. Of what remains (each start's
-/// fixed point, and the further starts as they are), the lowest registration score wins.
-/// Several starts matter where ICP can slide along a near-symmetry of the shape (a plain box
-/// or tin seen in part): the fixed point reached from a rough start may then fit no better than
-/// registration's estimate, which already lies at the bottom of the same basin and is kept.
-/// `None` when either cloud is too small or nothing remains: keep `starts[0]` then.
-pub fn polish(
-    source: &PointCloud,
-    target: &PointCloud,
-    starts: &[Rigid],
-    opts: &RegisterOptions,
-    limits: &PolishLimits,
-) -> Option<Registration> {
-    let first = starts.first()?;
-    if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
-        return None;
-    }
-    let lv = Levels::new(source, target, opts);
-    let q0 = first.quat().normalize();
-    let start = lv.quality(q0, Vec3::from_array(first.translation), opts);
-    let centroid = source
-        .position
-        .iter()
-        .fold(Vec3::ZERO, |a, p| a + Vec3::from_array(*p))
-        / source.len() as f32;
-    let reach = limits.translation * bbox_diagonal(source);
-    let near = |r: &Rigid| {
-        let moved = (Vec3::from_array(r.transform_point(centroid.to_array()))
-            - Vec3::from_array(first.transform_point(centroid.to_array())))
-        .length();
-        r.quat().angle_between(q0).to_degrees() <= limits.rotation_deg && moved <= reach
-    };
-    starts
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| near(s))
-        .flat_map(|(k, s)| {
-            let q = s.quat().normalize().as_dquat();
-            let t = Vec3::from_array(s.translation).as_dvec3();
-            let (q, t) = icp(&lv.src_c, &lv.tgt_c, q, t, lv.coarse, opts);
-            let (q, t) = icp(&lv.src_f, &lv.tgt_f, q, t, lv.fine, opts);
-            let polished = lv.quality(q.as_quat(), t.as_vec3(), opts);
-            // A further start (registration's) is a fixed point of the fine level already,
-            // which the coarse level can pull away from: it competes as it is too.
-            let kept = (k > 0)
-                .then(|| lv.quality(s.quat().normalize(), Vec3::from_array(s.translation), opts));
-            std::iter::once(polished).chain(kept)
-        })
-        .filter(|r| near(&r.transform) && r.fitness >= limits.fitness * start.fitness)
-        .min_by(|a, b| a.score.total_cmp(&b.score))
-}
-
-/// Of `hypotheses` (poses from different basins, each already polished in its own), the one
-/// whose geometry fits best: the lowest [`Registration::geometric_cost`], with its index.
-/// Colour does not vote: under another lighting a chrome object's reflections or a shadow
-/// move across its surface, and the trimmed score's colour term can then prefer a pose turned
-/// upside down. Where two hypotheses differ by a symmetry of the shape the costs tie and
-/// either is right for what follows (the translation is the same). `None` when either cloud is
-/// too small or there is no hypothesis.
-pub fn best_fit(
-    source: &PointCloud,
-    target: &PointCloud,
-    hypotheses: &[Rigid],
-    opts: &RegisterOptions,
-) -> Option<(usize, Registration)> {
-    if source.len() < MIN_POINTS || target.len() < MIN_POINTS {
-        return None;
-    }
-    let lv = Levels::new(source, target, opts);
-    hypotheses
-        .iter()
-        .map(|h| lv.quality(h.quat().normalize(), Vec3::from_array(h.translation), opts))
-        .enumerate()
-        .min_by(|a, b| a.1.geometric_cost.total_cmp(&b.1.geometric_cost))
-}
-
-/// Poses of every object in every state, relative to `states[0]` (the reference state, whose
-/// poses are identity with fitness 1). `states[j]` is the cloud of the j-th training state;
-/// `poses[j][o]` is `None` when object `object_ids[o]` is too sparsely seen in state j or in
+/// The [`Pair`] of every object in every state with the reference state `states[0]`:
+/// `pairs[j][o]` maps object `object_ids[o]` from `states[0]` into `states[j]` (row 0 pairs the
+/// reference state with itself); `None` when the object is too sparsely seen in state j or in
 /// the reference state.
-pub fn object_poses(
+pub fn object_pairs(
     states: &[PointCloud],
     object_ids: &[u8],
     opts: &RegisterOptions,
-) -> Vec<Vec<Option<Registration>>> {
+) -> Vec<Vec<Option<Pair>>> {
     let Some(reference) = states.first() else {
         return Vec::new();
     };
@@ -832,14 +840,27 @@ pub fn object_poses(
         .collect();
     states
         .iter()
-        .enumerate()
-        .map(|(j, cloud)| {
+        .map(|cloud| {
             object_ids
                 .iter()
                 .zip(&refs)
-                .map(|(&id, src)| {
-                    if j == 0 {
-                        return (src.len() >= MIN_POINTS).then_some(Registration {
+                .map(|(&id, src)| Pair::new(src, &cloud.with_mask(id), opts))
+                .collect()
+        })
+        .collect()
+}
+
+/// [`Pair::register`] of every pair of [`object_pairs`], but the reference state's own (row 0),
+/// whose poses are identity with fitness 1.
+pub fn registrations(pairs: &[Vec<Option<Pair>>]) -> Vec<Vec<Option<Registration>>> {
+    pairs
+        .iter()
+        .enumerate()
+        .map(|(j, row)| {
+            row.iter()
+                .map(|p| {
+                    p.as_ref().map(|p| match j {
+                        0 => Registration {
                             transform: Rigid::IDENTITY,
                             fitness: 1.0,
                             rmse: 0.0,
@@ -847,11 +868,23 @@ pub fn object_poses(
                             score: 0.0,
                             geometric_cost: 0.0,
                             spacing: 0.0,
-                        });
-                    }
-                    register(src, &cloud.with_mask(id), opts)
+                        },
+                        _ => p.register(),
+                    })
                 })
                 .collect()
         })
         .collect()
+}
+
+/// Poses of every object in every state, relative to `states[0]` (the reference state, whose
+/// poses are identity with fitness 1): [`registrations`] of [`object_pairs`]. `poses[j][o]` is
+/// `None` when object `object_ids[o]` is too sparsely seen in state j or in the reference
+/// state.
+pub fn object_poses(
+    states: &[PointCloud],
+    object_ids: &[u8],
+    opts: &RegisterOptions,
+) -> Vec<Vec<Option<Registration>>> {
+    registrations(&object_pairs(states, object_ids, opts))
 }

@@ -3,10 +3,12 @@
 //! 1. Read the dataset and every training observation (checked: [`Dataset::training_observations`]);
 //!    every 8th view of each state (index ≡ 0 mod 8, the mip-NeRF 360 convention) is held out.
 //! 2. Back-project the training views ([`init::backproject`]), estimate each object's pose in
-//!    every state: point-cloud registration of its masked points ([`register::object_poses`]),
-//!    whose results are candidates for the rendered alignment ([`align::object_poses_by_rendering`],
-//!    which finds the right basin where clouds cannot), whose poses ICP then polishes
-//!    ([`register::polish`]); ground truth only with `--oracle-poses`. Build the initial
+//!    every state: point-cloud registration of its masked points ([`register::Pair`]s, one per
+//!    object and state, [`register::registrations`]), whose results are candidates for the
+//!    rendered alignment ([`align::object_poses_by_rendering`], which finds the right basin
+//!    where clouds cannot), whose poses ICP then polishes ([`register::Pair::polish`]) and
+//!    geometry chooses ([`register::Pair::best_fit`]); ground truth only with `--oracle-poses`.
+//!    Build the initial
 //!    components ([`init::initial_components`]).
 //! 3. Clean the labels with the graph cut ([`segment::segment`]) over the reference state.
 //! 4. Train ([`train::Trainer`]); at a third of the iterations, seed surfels where the render lies
@@ -85,14 +87,14 @@ pub struct Report {
 /// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
 /// identities included), as step 2 found them: by point-cloud registration (none where it
 /// failed), by the rendered alignment, and where training starts: each of the two polished by
-/// ICP in its own basin, and the better fit of the two ([`register::best_fit`]).
+/// ICP in its own basin, and the better fit of the two ([`register::Pair::best_fit`]).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct PoseSteps {
     pub format: String,
     pub registered: Vec<Vec<Option<Rigid>>>,
     pub aligned: Vec<Vec<Rigid>>,
     /// Where training starts: of the aligned and the registered pose, each polished
-    /// ([`register::polish`]), the better geometric fit ([`register::best_fit`]).
+    /// ([`register::Pair::polish`]), the better geometric fit ([`register::Pair::best_fit`]).
     pub polished: Vec<Vec<Rigid>>,
 }
 
@@ -282,7 +284,11 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                     train.len()
                 ),
             );
-            let reg = register::object_poses(&clouds, &ids, &register::RegisterOptions::default());
+            let ropts = register::RegisterOptions::default();
+            // Each object's clouds in the reference state and in state j, prepared once for
+            // the registration, the polish and the choice below.
+            let pairs = register::object_pairs(&clouds, &ids, &ropts);
+            let reg = register::registrations(&pairs);
             // The point-cloud registrations are candidates for the analysis-by-synthesis search,
             // which scores poses by rendering the object into every view of the state.
             let initial: Vec<Vec<Option<Rigid>>> = reg
@@ -305,13 +311,12 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                     .collect(),
             };
             // Two hypotheses per object and state, each polished in its own basin by ICP
-            // (`register::polish`): the rendered alignment's pose, which finds the basin
+            // (`register::Pair::polish`): the rendered alignment's pose, which finds the basin
             // where registration lost the object (study: a thin sign, a chrome bottle upside
             // down; bedroom: a lamp 65° off) but is biased by ~1-2 cm and a few degrees, and
             // registration's estimate, right where the alignment's score chose a wrong basin
             // (study: an untextured Suzanne 136° off). The one whose geometry fits the clouds
-            // best wins (`register::best_fit`; colour does not vote across lightings).
-            let ropts = register::RegisterOptions::default();
+            // best wins (`register::Pair::best_fit`; colour does not vote across lightings).
             let limits = register::PolishLimits::default();
             let polished: Vec<Vec<Rigid>> = aligned
                 .iter()
@@ -320,26 +325,21 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                     row.iter()
                         .enumerate()
                         .map(|(o, pose)| {
-                            if j == 0 {
+                            let Some(pair) = pairs[j][o].as_ref().filter(|_| j > 0) else {
                                 return *pose;
-                            }
-                            let src = clouds[0].with_mask(ids[o]);
-                            let tgt = clouds[j].with_mask(ids[o]);
+                            };
                             // Registration's estimate, where it lies in the basin the
                             // alignment chose, is a second start there.
                             let starts: Vec<Rigid> =
                                 std::iter::once(*pose).chain(initial[j][o]).collect();
                             let from_aligned =
-                                register::polish(&src, &tgt, &starts, &ropts, &limits)
-                                    .map_or(*pose, |r| r.transform);
-                            let from_registered = initial[j][o].map(|r| {
-                                register::polish(&src, &tgt, &[r], &ropts, &limits)
-                                    .map_or(r, |p| p.transform)
-                            });
+                                pair.polish(&starts, &limits).map_or(*pose, |r| r.transform);
+                            let from_registered = initial[j][o]
+                                .map(|r| pair.polish(&[r], &limits).map_or(r, |p| p.transform));
                             let hypotheses: Vec<Rigid> = std::iter::once(from_aligned)
                                 .chain(from_registered)
                                 .collect();
-                            register::best_fit(&src, &tgt, &hypotheses, &ropts)
+                            pair.best_fit(&hypotheses)
                                 .map_or(from_aligned, |(k, _)| hypotheses[k])
                         })
                         .collect()
