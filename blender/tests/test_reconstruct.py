@@ -118,3 +118,18 @@ def test_reconstruct_bad_input_is_a_clear_error(tiny_dataset, tmp_path):
     p = run("reconstruct", bad, "-o", tmp_path / "w")
     assert p.returncode == 2 and "dataset.json" in p.stderr, p.stderr
     assert not (tmp_path / "w" / "scene.glb").exists()
+
+    p = run("reconstruct", tiny_dataset["path"], "-o", tmp_path / "w2", "--refine-poses", "sideways")
+    assert p.returncode == 2 and "--refine-poses" in p.stderr and "geometry" in p.stderr, p.stderr
+    assert not (tmp_path / "w2").exists()
+
+
+def test_reconstruct_refines_poses_when_asked(tiny_dataset, tmp_path):
+    # `--refine-poses geometry` moves the object poses from a third of the iterations on (by
+    # the lighting-free terms: tests/reconstruct_train.rs), so the final pose is no longer the
+    # polished one; off (the default, test above), it is.
+    work = tmp_path / "work"
+    report = json.loads(ok("--json", "reconstruct", tiny_dataset["path"], "-o", work,
+                           "--iterations", "30", "--refine-poses", "geometry"))
+    moved = [p for p in report["pose_errors"] if p["translation_cm"] != p["polished"]["translation_cm"]]
+    assert moved, report["pose_errors"]

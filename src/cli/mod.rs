@@ -249,6 +249,12 @@ pub struct ReconstructArgs {
     /// Use the dataset's ground-truth object poses instead of estimating them.
     #[arg(long)]
     pub oracle_poses: bool,
+    /// Refine the object poses by the splatting gradients from a third of the iterations on:
+    /// "geometry" (the coverage, depth and normal terms only, which a change of lighting does
+    /// not bias), "photometric" (every term, colour included) or "off" (default: the presets'
+    /// choice; stage 1's registration is kept).
+    #[arg(long)]
+    pub refine_poses: Option<String>,
     /// Continue from --out/checkpoint.json if it is there.
     #[arg(long)]
     pub resume: bool,
@@ -729,6 +735,21 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
         settings.iterations = n;
     }
     settings.seed = a.seed;
+    if let Some(r) = &a.refine_poses {
+        use crate::stages::reconstruct::train::PoseGradient;
+        let (from, gradient) = match r.as_str() {
+            "off" => (u32::MAX, settings.pose_gradient),
+            "geometry" => (settings.iterations / 3, PoseGradient::Geometry),
+            "photometric" => (settings.iterations / 3, PoseGradient::Photometric),
+            other => {
+                return Err(Error::Usage(format!(
+                    "--refine-poses: expected \"geometry\", \"photometric\" or \"off\", found {other:?}"
+                )))
+            }
+        };
+        settings.pose_from = from;
+        settings.pose_gradient = gradient;
+    }
     if !(a.voxel > 0.0 && a.voxel.is_finite() && a.tau_d > 0.0 && a.tau_d.is_finite()) {
         return Err(Error::Usage(
             "--voxel and --tau-d: expected positive lengths in metres".into(),

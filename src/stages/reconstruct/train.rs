@@ -24,6 +24,26 @@ use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+/// The loss terms whose gradient moves the object poses of the non-reference states.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseGradient {
+    /// The lighting-free terms only: coverage, depth, normal and depth–normal consistency
+    /// (eqs. alpha-coverage, reconstruction-depth, reconstruction-normal), whose optimum does
+    /// not move when a state's shadows and highlights do. Costs a second backward pass (with
+    /// the colour gradient zeroed) on the iterations that move poses.
+    Geometry,
+    /// Every term, colour included: a state's shadows and highlights, baked into its
+    /// appearance, then pull its poses (a shadow edge across an object drags it along).
+    Photometric,
+}
+
+impl PoseGradient {
+    fn photometric() -> Self {
+        PoseGradient::Photometric
+    }
+}
+
 /// Everything the loop's behaviour depends on; presets below.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Settings {
@@ -41,6 +61,9 @@ pub struct Settings {
     /// First iteration at which object poses move (the surfels settle first); `u32::MAX`:
     /// never (the presets, see [`Settings::fast`]).
     pub pose_from: u32,
+    /// Which loss terms move the poses (checkpoints from before the switch: every term).
+    #[serde(default = "PoseGradient::photometric")]
+    pub pose_gradient: PoseGradient,
     pub lambda_dssim: f32,
     /// L_RGB on display-encoded colours ([`optim::rgb_loss_display`]) rather than linear ones.
     pub display_loss: bool,
@@ -86,11 +109,13 @@ impl Settings {
             // 0.06-0.43 cm (mean 0.26 cm), against 0.16 cm left alone; rotations changed by
             // at most 1.1°, not consistently for the better. On bedroom these rates moved poses
             // polished to 0.01-0.16 cm to 0.1-0.8 cm. The loop still refines poses (tested on a
-            // synthetic capture) when `pose_from` is set.
+            // synthetic capture) when `pose_from` is set, by the lighting-free terms unless
+            // asked otherwise (`pose_gradient`; `lightfuse reconstruct --refine-poses`).
             lr_pose_translation: 1e-4,
             lr_pose_rotation: 2e-4,
             lr_colour: 1e-3,
             pose_from: u32::MAX,
+            pose_gradient: PoseGradient::Geometry,
             lambda_dssim: optim::LAMBDA_DSSIM,
             display_loss: true,
             lambda_alpha: 0.05,
@@ -538,6 +563,7 @@ impl Trainer {
             .collect();
         let mut grad = ImageGrad::zeros(img.width, img.height);
         let mut losses = Losses::default();
+        let moves_poses = j > 0 && self.iteration >= s.pose_from;
 
         let rgb = if s.display_loss {
             optim::rgb_loss_display(&color, &target, w, h, s.lambda_dssim)
@@ -547,7 +573,8 @@ impl Trainer {
         losses.rgb = rgb.value;
         // Through the colour matrix: ∂L/∂C = Mᵀ ∂L/∂(MC), ∂L/∂M = Σ_p ∂L/∂(MC)_p C_pᵀ.
         let mut g_colour = [0.0f32; 9];
-        grad.color = rgb
+        // Set on `grad` after the lighting-free terms' own backward pass (if poses take it).
+        let color_grad: Vec<[f32; 3]> = rgb
             .grad
             .iter()
             .zip(&img.color)
@@ -596,6 +623,11 @@ impl Trainer {
                 }
             }
         }
+        // The backward pass is linear in `grad`: with the colour gradient still zero, this is
+        // the gradient of the lighting-free terms alone.
+        let geometric = (moves_poses && s.pose_gradient == PoseGradient::Geometry)
+            .then(|| fwd.backward(&grad).transforms);
+        grad.color = color_grad;
         let grads = fwd.backward(&grad);
         drop(fwd);
 
@@ -667,8 +699,9 @@ impl Trainer {
             self.adam.step(gi, &mut self.model.colour[j], &g_colour);
         }
         // Object poses of non-reference states (the reference state defines the object frame).
-        if j > 0 && self.iteration >= s.pose_from {
-            for (o, tg) in grads.transforms.iter().skip(1).enumerate() {
+        if moves_poses {
+            let transforms = geometric.as_ref().unwrap_or(&grads.transforms);
+            for (o, tg) in transforms.iter().skip(1).enumerate() {
                 let p = &mut self.pose_params[j][6 * o..6 * o + 6];
                 let (pt, pr) = p.split_at_mut(3);
                 let gt = self.adam.group_index(&format!("pose{j}.{o}.t")).unwrap();
