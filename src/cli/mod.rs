@@ -250,9 +250,10 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub oracle_poses: bool,
     /// Refine the object poses by the splatting gradients from a third of the iterations on:
-    /// "geometry" (the coverage, depth and normal terms only, which a change of lighting does
-    /// not bias), "photometric" (every term, colour included) or "off" (default: the presets'
-    /// choice; stage 1's registration is kept).
+    /// "photometric" (every term), "geometry" (the coverage, depth and normal terms only, which
+    /// a change of lighting does not bias) or "off" (default: the presets' choice, stage 1's
+    /// registered poses are kept; on the demo both refinements moved them farther from the
+    /// truth: `train::Settings::fast`).
     #[arg(long)]
     pub refine_poses: Option<String>,
     /// Continue from --out/checkpoint.json if it is there.

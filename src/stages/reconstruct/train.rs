@@ -30,8 +30,11 @@ use serde::{Deserialize, Serialize};
 pub enum PoseGradient {
     /// The lighting-free terms only: coverage, depth, normal and depth–normal consistency
     /// (eqs. alpha-coverage, reconstruction-depth, reconstruction-normal), whose optimum does
-    /// not move when a state's shadows and highlights do. Costs a second backward pass (with
-    /// the colour gradient zeroed) on the iterations that move poses.
+    /// not move when a state's shadows and highlights do (tested on a synthetic capture with a
+    /// shadow). Costs a second backward pass (with the colour gradient zeroed) on the
+    /// iterations that move poses. On the demo it is the worse of the two (see
+    /// [`Settings::fast`]): its signal at millimetre errors is weak, and Adam's normalised
+    /// step follows whatever bias it has as fast as a strong signal.
     Geometry,
     /// Every term, colour included: a state's shadows and highlights, baked into its
     /// appearance, then pull its poses (a shadow edge across an object drags it along).
@@ -108,14 +111,16 @@ impl Settings {
             // 0.41 cm), a log-linear decay to 1 % to 0.10-0.47 cm, a tenth of the rates to
             // 0.06-0.43 cm (mean 0.26 cm), against 0.16 cm left alone; rotations changed by
             // at most 1.1°, not consistently for the better. On bedroom these rates moved poses
-            // polished to 0.01-0.16 cm to 0.1-0.8 cm. The loop still refines poses (tested on a
-            // synthetic capture) when `pose_from` is set, by the lighting-free terms unless
-            // asked otherwise (`pose_gradient`; `lightfuse reconstruct --refine-poses`).
+            // polished to 0.01-0.16 cm to 0.1-0.8 cm. By the lighting-free terms alone
+            // (`PoseGradient::Geometry`) at these rates it is worse still: on the demo 0.72-3.68
+            // cm (mean 2.2 cm), rotations 0.75-5.35°, held out 22.27 dB. The loop still refines
+            // poses (tested on synthetic captures) when `pose_from` is set (`lightfuse
+            // reconstruct --refine-poses photometric|geometry`).
             lr_pose_translation: 1e-4,
             lr_pose_rotation: 2e-4,
             lr_colour: 1e-3,
             pose_from: u32::MAX,
-            pose_gradient: PoseGradient::Geometry,
+            pose_gradient: PoseGradient::Photometric,
             lambda_dssim: optim::LAMBDA_DSSIM,
             display_loss: true,
             lambda_alpha: 0.05,
