@@ -91,11 +91,12 @@ print("Measured by `bash scripts/stage1_survey.sh` (each scene at its default si
       "state but the reference one, symmetry-aware rotation, translation at the point its symmetries "
       "fix; within = within 2 deg and 1 cm (aim: 90 % of them, and every one within 5 deg and 3 cm). "
       "Label share: the share of an object's surface (interior mask pixels of the reference state) "
-      "whose nearest surfel carries its label (aim: every one 95 % or more). Wall time summed over "
-      "the invocations of a resumed run; machines differ between sittings.\n")
+      "whose nearest surfel carries its label (aim: every one 95 % or more); purity: the share of an "
+      "object's surfels whose nearest observed surface point is its own (runs before it was measured: -). "
+      "Wall time summed over the invocations of a resumed run; machines differ between sittings.\n")
 print("| Scene | poses within | largest rotation / translation | within 5 deg / 3 cm | label shares (>= 95 %) "
-      "| held-out PSNR (training) | median depth error | wall | peak RSS |")
-print("|---|---|---|---|---|---|---|---|---|")
+      "| purity | held-out PSNR (training) | median depth error | wall | peak RSS |")
+print("|---|---|---|---|---|---|---|---|---|---|")
 tot = tot_in = tot_5 = lab = lab_ok = 0
 for s in done:
     with open(os.path.join(res, s, "report.json")) as f:
@@ -118,13 +119,15 @@ for s in done:
                 rss = max(rss, float(p[1]))
     name = f"*{s}*" if s in FAMILY else s
     lo = f"{100 * min(shares):.1f}-{100 * max(shares):.1f} % ({ok} of {len(shares)})" if shares else "-"
-    print(f"| {name} | {within} of {n} | {rot:.2f} deg / {tr:.2f} cm | {w5} of {n} | {lo} "
+    pur = [v for _, v in r.get("label_purity") or []]
+    pu = f"{100 * min(pur):.1f}-{100 * max(pur):.1f} %" if pur else "-"
+    print(f"| {name} | {within} of {n} | {rot:.2f} deg / {tr:.2f} cm | {w5} of {n} | {lo} | {pu} "
           f"| {r['heldout_psnr_srgb']:.2f} dB ({r['train_psnr_srgb']:.2f}) "
           f"| {100 * r['heldout_median_depth_error_m']:.2f} cm | {wall:.0f} s | {rss / 1048576:.2f} GB |")
 missing = [s for s in ORDER if s not in done]
 if done:
     print(f"| **all {len(done)} scenes** | **{tot_in} of {tot}** ({100 * tot_in / max(tot, 1):.0f} %) | "
-          f"| {tot_5} of {tot} | {lab_ok} of {lab} | | | | |")
+          f"| {tot_5} of {tot} | {lab_ok} of {lab} | | | | | |")
 if missing:
     print(f"\nNot measured yet: {', '.join(missing)}.")
 PY

@@ -818,8 +818,12 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
                 100.0 * p.error.translation_m
             );
         }
-        for (name, share) in &report.label_share {
-            eprintln!("  label share {name}: {:.1}%", 100.0 * share);
+        for ((name, share), (_, purity)) in report.label_share.iter().zip(&report.label_purity) {
+            eprintln!(
+                "  label share {name}: {:.1}% (its surfels on its own surface: {:.1}%)",
+                100.0 * share,
+                100.0 * purity
+            );
         }
     }
     Ok(())

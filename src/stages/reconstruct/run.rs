@@ -81,6 +81,9 @@ pub struct Report {
     /// Per object: share of its true surface points (masked reference depth) whose nearest
     /// surfel carries its label.
     pub label_share: Vec<(String, f64)>,
+    /// Per object: share of its surfels whose nearest observed surface point (any label's,
+    /// reference state) is its own ([`crate::eval::labels::label_purity`]).
+    pub label_purity: Vec<(String, f64)>,
     pub oracle_poses: bool,
 }
 
@@ -602,15 +605,17 @@ fn evaluate(
     }
 
     // Label shares: true surface points of each object (masked depth, reference state, all its
-    // views) against the nearest surfel of the assembled reference state.
+    // views) against the nearest surfel of the assembled reference state; and the purity of
+    // each object's surfels against the nearest observed point.
     let views: Vec<&Observation> = train[0].iter().chain(&held[0]).collect();
     let objects: Vec<(String, u32)> = dataset
         .objects
         .iter()
         .map(|o| (o.name.clone(), o.id))
         .collect();
-    let label_share =
-        crate::eval::labels::label_shares(&model.scene_components(), &views, &objects);
+    let components = model.scene_components();
+    let label_share = crate::eval::labels::label_shares(&components, &views, &objects);
+    let label_purity = crate::eval::labels::label_purity(&components, &views, &objects);
     Ok(Report {
         dataset: dataset.file.display().to_string(),
         iterations: opts.settings.iterations,
@@ -624,6 +629,7 @@ fn evaluate(
         heldout_median_depth_error_rel: median / extent.max(1e-9),
         pose_errors,
         label_share,
+        label_purity,
         oracle_poses: opts.oracle_poses,
     })
 }
