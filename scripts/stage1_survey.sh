@@ -126,7 +126,7 @@ for s in done:
           f"| {100 * r['heldout_median_depth_error_m']:.2f} cm | {wall:.0f} s | {rss / 1048576:.2f} GB |")
 missing = [s for s in ORDER if s not in done]
 if done:
-    print(f"| **all {len(done)} scenes** | **{tot_in} of {tot}** ({100 * tot_in / max(tot, 1):.0f} %) | "
+    print(f"| **all {len(done)} scene{'s' * (len(done) != 1)}** | **{tot_in} of {tot}** ({100 * tot_in / max(tot, 1):.0f} %) | "
           f"| {tot_5} of {tot} | {lab_ok} of {lab} | | | | | |")
 if missing:
     print(f"\nNot measured yet: {', '.join(missing)}.")
