@@ -161,6 +161,12 @@ fn two_states(comps: &[Component], turn: f32) -> (Rigid, Vec<Vec<Observation>>) 
     (truth, obs)
 }
 
+/// Adds an opaque grey 1 cm surfel at `p` oriented `q` to `s` (a label test's hand-over).
+fn push_grey(s: &mut Surfels, p: [f32; 3], q: [f32; 4]) {
+    let sh = vec![[0.0; 3]; s.sh_stride()];
+    s.push(p, q, [0.01; 2], 1.0, &sh, [0.5; 3], 0.0, 0.5);
+}
+
 /// The box's poses in both states after training `comps` on `obs` with `settings` from
 /// `start` (its pose in state 1; identity in the reference state 0).
 fn trained_poses(
@@ -464,20 +470,9 @@ fn labels_hold_over_training() {
         let mut moved = trainer.model.scene_components();
         let (floor, boxy) = moved.split_at_mut(1);
         let (floor, boxy) = (&mut floor[0].surfels, &mut boxy[0].surfels);
-        let stride = floor.sh_stride();
         for i in 0..boxy.len() {
             if boxy.position[i][1] < 0.1 {
-                let (p, q) = (boxy.position[i], boxy.rotation[i]);
-                floor.push(
-                    p,
-                    q,
-                    [0.01; 2],
-                    1.0,
-                    &vec![[0.0; 3]; stride],
-                    [0.5; 3],
-                    0.0,
-                    0.5,
-                );
+                push_grey(floor, boxy.position[i], boxy.rotation[i]);
                 boxy.position[i][1] += 100.0;
             }
         }
@@ -497,21 +492,11 @@ fn labels_hold_over_training() {
         let mut grabbed = trained.clone();
         let (floor, boxy) = grabbed.split_at_mut(1);
         let (floor, boxy) = (&floor[0].surfels, &mut boxy[0].surfels);
-        let stride = boxy.sh_stride();
         for i in 0..floor.len() {
             let p = floor.position[i];
             let r = p[0].abs().max(p[2].abs());
             if r > 0.15 && r < 0.35 {
-                boxy.push(
-                    p,
-                    floor.rotation[i],
-                    [0.01; 2],
-                    1.0,
-                    &vec![[0.0; 3]; stride],
-                    [0.5; 3],
-                    0.0,
-                    0.5,
-                );
+                push_grey(boxy, p, floor.rotation[i]);
             }
         }
         let impure = purity(&grabbed);
