@@ -190,6 +190,19 @@ const GROUPS: [(&str, usize); 4] = [
 ];
 
 impl RawComponent {
+    /// The mean of the surfel centres (the origin for an empty component), in the component's
+    /// frame.
+    pub fn centroid(&self) -> [f32; 3] {
+        let n = self.position.len() / 3;
+        let mut sum = [0.0f64; 3];
+        for p in self.position.chunks_exact(3) {
+            for k in 0..3 {
+                sum[k] += p[k] as f64;
+            }
+        }
+        sum.map(|x| (x / n.max(1) as f64) as f32)
+    }
+
     /// The component's parameters: its SH as the shared appearance, zero residuals for each of
     /// `states` training states.
     pub fn from_component(c: &Component, states: usize) -> RawComponent {
@@ -703,18 +716,27 @@ impl Trainer {
             let gi = self.adam.group_index(&format!("colour{j}")).unwrap();
             self.adam.step(gi, &mut self.model.colour[j], &g_colour);
         }
-        // Object poses of non-reference states (the reference state defines the object frame).
+        // Object poses of non-reference states (the reference state defines the object frame),
+        // each turning about the object's centre (its surfels' mean, placed), so that a rotation
+        // step does not also move it ([`splat::perturb_about`]).
         if moves_poses {
             let transforms = geometric.as_ref().unwrap_or(&grads.transforms);
             for (o, tg) in transforms.iter().skip(1).enumerate() {
+                let pose = self.model.poses[j][o];
+                let pivot = pose.transform_point(self.model.components[o + 1].centroid());
+                let tg = tg.about(&pose, pivot);
                 let p = &mut self.pose_params[j][6 * o..6 * o + 6];
                 let (pt, pr) = p.split_at_mut(3);
                 let gt = self.adam.group_index(&format!("pose{j}.{o}.t")).unwrap();
                 let gr = self.adam.group_index(&format!("pose{j}.{o}.r")).unwrap();
                 self.adam.step(gt, pt, &tg.translation);
                 self.adam.step(gr, pr, &tg.rotation);
-                let pose = &mut self.model.poses[j][o];
-                *pose = splat::perturb(pose, [pt[0], pt[1], pt[2]], [pr[0], pr[1], pr[2]]);
+                self.model.poses[j][o] = splat::perturb_about(
+                    &pose,
+                    [pt[0], pt[1], pt[2]],
+                    [pr[0], pr[1], pr[2]],
+                    pivot,
+                );
                 p.iter_mut().for_each(|x| *x = 0.0);
             }
         }
