@@ -4,8 +4,9 @@
 //! the capture, and every surfel parameter and every non-reference object pose updated by Adam.
 //!
 //! Parameters are kept raw, as 2DGS optimises them: centres, raw quaternions, log scales,
-//! logit opacities and SH coefficients; a pose update is an increment (δ, ω) applied on the left
-//! ([`crate::splat::perturb`]) and reset to zero, so Adam sees the pose's tangent space.
+//! logit opacities and SH coefficients; a pose update is an increment (δ, ω) applied on the left,
+//! turning about the object's centre ([`crate::splat::perturb_about`]), and reset to zero, so
+//! Adam sees the pose's tangent space.
 //!
 //! Losses per view: L_RGB = 0.8 L1 + 0.2 D-SSIM on the capture's colour where its depth is
 //! valid (black elsewhere: the splats render over black and must leave the environment
