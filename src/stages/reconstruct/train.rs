@@ -112,11 +112,13 @@ impl Settings {
             // 0.41 cm), a log-linear decay to 1 % to 0.10-0.47 cm, a tenth of the rates to
             // 0.06-0.43 cm (mean 0.26 cm), against 0.16 cm left alone; rotations changed by
             // at most 1.1°, not consistently for the better. On bedroom these rates moved poses
-            // polished to 0.01-0.16 cm to 0.1-0.8 cm. By the lighting-free terms alone
-            // (`PoseGradient::Geometry`) at these rates it is worse still: on the demo 0.72-3.68
-            // cm (mean 2.2 cm), rotations 0.75-5.35°, held out 22.27 dB. The loop still refines
-            // poses (tested on synthetic captures) when `pose_from` is set (`lightfuse
-            // reconstruct --refine-poses photometric|geometry`).
+            // polished to 0.01-0.16 cm to 0.1-0.8 cm. (Those runs turned rotation steps about
+            // the reference world's origin; turning about each object's centre, as now, the
+            // demo's figures from the same start: photometric 0.22-0.80 cm, mean 0.54 cm,
+            // 0.80-3.99°; by the lighting-free terms alone, `PoseGradient::Geometry`, worse
+            // still: 0.59-3.11 cm, mean 1.97 cm, 1.22-3.07°; left alone 0.15 cm; held out
+            // 22.28-22.29 dB in all three.) The loop still refines poses (tested on synthetic
+            // captures) when `pose_from` is set (`lightfuse reconstruct --refine-poses`).
             lr_pose_translation: 1e-4,
             lr_pose_rotation: 2e-4,
             lr_colour: 1e-3,
