@@ -531,3 +531,126 @@ fn registers_under_a_strong_lighting_change_to_one_degree_and_five_mm() {
         );
     }
 }
+
+/// A plain steel pot, the demo's kind of object: a cylinder (radius 0.1 m, 0.15 m tall, with a
+/// lid) and two handles (3 × 4 × 3 cm blocks on opposite sides), seen from all around and above
+/// with ~6 mm between points and 1 mm noise along the normal. Only the handles fix its turn
+/// about +Y. Steel grey everywhere but for a blue reflection of the sky on the body, the points
+/// within 20° of azimuth `glint` (object frame, measured as a turn about +Y): where it sits is
+/// the lighting's doing, not the object's.
+fn observe_pot(glint: f32, pose: &Rigid, seed: u64) -> PointCloud {
+    let mut rng = SplitMix(seed);
+    let mut c = PointCloud::default();
+    let (r, h, spacing) = (0.1f32, 0.15f32, 0.006f32);
+    let q = pose.quat();
+    let mut put = |p: Vec3, n: Vec3, rgb: [f32; 3], rng: &mut SplitMix| {
+        let p = p + n * (rng.f32() - 0.5) * 0.002 * 3f32.sqrt();
+        c.push(
+            (q * p + Vec3::from_array(pose.translation)).to_array(),
+            (q * n).to_array(),
+            rgb,
+            1,
+            0,
+            0.004,
+        );
+    };
+    let steel = [0.55, 0.55, 0.58];
+    let sky = [0.3, 0.42, 0.85];
+    let wall = std::f32::consts::TAU * r * h;
+    for _ in 0..(wall / (spacing * spacing)) as usize {
+        let (phi, y) = (rng.f32() * std::f32::consts::TAU, rng.f32() * h);
+        // A turn by φ about +Y takes +X to (cos φ, 0, −sin φ).
+        let n = Vec3::new(phi.cos(), 0.0, -phi.sin());
+        let d = (phi - glint + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU)
+            - std::f32::consts::PI;
+        let rgb = if d.abs() < 20f32.to_radians() {
+            sky
+        } else {
+            steel
+        };
+        put(n * r + Vec3::Y * y, n, rgb, &mut rng);
+    }
+    let lid = std::f32::consts::PI * r * r;
+    for _ in 0..(lid / (spacing * spacing)) as usize {
+        let (phi, s) = (rng.f32() * std::f32::consts::TAU, r * rng.f32().sqrt());
+        put(
+            Vec3::new(s * phi.cos(), h, s * phi.sin()),
+            Vec3::Y,
+            steel,
+            &mut rng,
+        );
+    }
+    // Each handle: the block x ∈ [r, r + 3 cm], y ∈ [8, 12] cm, z ∈ ±1.5 cm (mirrored in x for
+    // the other), its five faces off the body sampled by area.
+    let (lo, hi) = (Vec3::new(r, 0.08, -0.015), Vec3::new(r + 0.03, 0.12, 0.015));
+    for side in [1.0f32, -1.0] {
+        for (axis, at_max) in [(0, true), (1, false), (1, true), (2, false), (2, true)] {
+            let (i, j) = ((axis + 1) % 3, (axis + 2) % 3);
+            let area = (hi[i] - lo[i]) * (hi[j] - lo[j]);
+            for _ in 0..(area / (spacing * spacing)).ceil() as usize {
+                let mut p = Vec3::ZERO;
+                let mut n = Vec3::ZERO;
+                p[axis] = if at_max { hi[axis] } else { lo[axis] };
+                n[axis] = if at_max { 1.0 } else { -1.0 };
+                p[i] = lo[i] + rng.f32() * (hi[i] - lo[i]);
+                p[j] = lo[j] + rng.f32() * (hi[j] - lo[j]);
+                let mirror = Vec3::new(side, 1.0, 1.0);
+                put(p * mirror, n * mirror, steel, &mut rng);
+            }
+        }
+    }
+    c
+}
+
+/// The polish chooses by geometry, not by the colour-aware score. The pot's reflection sits 8°
+/// further round its body in state k than in the reference, so the pose turned 8° about its
+/// axis lays reflection on reflection: the trimmed score (colour included) prefers it to the
+/// truth, while the handles make it fit worse in geometry. Polished from the rendered
+/// alignment's kind of start (1.5° and 1 cm off) with that turned pose as the second start
+/// (registration's estimate, as stage 1 passes it), the result must be the handles' answer:
+/// within 1.5° and 5 mm of the truth at the base. (Choosing by the score, as the polish once
+/// did, returns the turned pose, 8° off, as it did the demo's pot at 5.6°.) 1.5°: ICP's
+/// fixed point from a rough start stops short of the truth by up to ~1° on shapes pinned by a
+/// small feature (the demo's pot: 1.6° from its true pose).
+#[test]
+fn polish_follows_the_geometry_where_a_reflection_moved() {
+    let opts = RegisterOptions::default();
+    let glint = 8f32.to_radians();
+    for (seed, turn) in [(15u64, 0.7f32), (25, -2.1)] {
+        let truth = Rigid {
+            rotation: Quat::from_rotation_y(turn).to_array(),
+            translation: [0.35, 0.0, -0.2],
+        };
+        let src = observe_pot(0.0, &Rigid::IDENTITY, seed + 1);
+        let tgt = observe_pot(glint, &truth, seed + 2);
+        let clouds = Pair::new(&src, &tgt, &opts).expect("enough points");
+        let turned = Rigid {
+            rotation: (truth.quat() * Quat::from_rotation_y(glint)).to_array(),
+            translation: truth.translation,
+        };
+        let (at_truth, at_turned) = (clouds.evaluate(&truth), clouds.evaluate(&turned));
+        eprintln!(
+            "pot seed {seed}: score {:.3} at the truth, {:.3} turned; geometric cost {:.5}, {:.5}",
+            at_truth.score, at_turned.score, at_truth.geometric_cost, at_turned.geometric_cost
+        );
+        // The case this test is about: colour misleads, geometry does not.
+        assert!(
+            at_turned.score < at_truth.score,
+            "seed {seed}: colour agrees"
+        );
+        assert!(at_turned.geometric_cost > at_truth.geometric_cost);
+        let start = perturbed(&truth, 1.5, 1.0);
+        let out = clouds
+            .polish(&[start, turned], &PolishLimits::default())
+            .expect("both starts are near");
+        let rot = out
+            .transform
+            .quat()
+            .angle_between(truth.quat())
+            .to_degrees();
+        let at = |r: &Rigid| Vec3::from_array(r.transform_point([0.0; 3]));
+        let t = (at(&out.transform) - at(&truth)).length();
+        eprintln!("pot seed {seed}: polished {rot:.2}°, {:.2} mm", t * 1e3);
+        assert!(rot < 1.5 && t < 0.005, "seed {seed}: {rot}°, {t} m");
+    }
+}

@@ -725,12 +725,17 @@ impl Pair {
     /// the millimetre. `starts[0]` is that pose and decides the basin: a fixed point beyond
     /// `limits` of it, or fitting worse than it does, is dropped, and so is a further start
     /// (e.g. the registration's own estimate) lying beyond `limits` of it. Of what remains
-    /// (each start's fixed point, and the further starts as they are), the lowest registration
-    /// score wins. Several starts matter where ICP can slide along a near-symmetry of the shape
-    /// (a plain box or tin seen in part): the fixed point reached from a rough start may then
-    /// fit no better than registration's estimate, which already lies at the bottom of the
-    /// same basin and is kept. `None` when nothing remains (or there is no start): keep
-    /// `starts[0]` then.
+    /// (each start's fixed point, and the further starts as they are), the lowest
+    /// [`Registration::geometric_cost`] wins, as in [`Pair::best_fit`]: colour guides ICP's
+    /// correspondences but does not vote here, since a reflection or a shadow that moved with
+    /// the lighting can make the trimmed score prefer a pose turned the few degrees that lay
+    /// it over its old place (the demo's steel pot, whose handles alone fix its turn: the
+    /// score chose registration's estimate 5.6° off, the geometry a fixed point 1.6° off).
+    /// Several starts matter where ICP can slide along a near-symmetry of the shape (a plain
+    /// box or tin seen in part): the fixed point reached from a rough start may then fit no
+    /// better than registration's estimate, which already lies at the bottom of the same
+    /// basin and is kept. `None` when nothing remains (or there is no start): keep `starts[0]`
+    /// then.
     pub fn polish(&self, starts: &[Rigid], limits: &PolishLimits) -> Option<Registration> {
         let first = starts.first()?;
         let q0 = first.quat().normalize();
@@ -758,7 +763,7 @@ impl Pair {
                 std::iter::once(polished).chain(kept)
             })
             .filter(|r| near(&r.transform) && r.fitness >= limits.fitness * start.fitness)
-            .min_by(|a, b| a.score.total_cmp(&b.score))
+            .min_by(|a, b| a.geometric_cost.total_cmp(&b.geometric_cost))
     }
 
     /// Of `hypotheses` (poses from different basins, each already polished in its own), the
