@@ -8,7 +8,8 @@
 # was tuned on (study gallery workshop); each at its default size.
 # Every step is skipped when its output exists, and a killed reconstruction resumes from its
 # checkpoint. Each scene's report.json, poses.json and time.txt (one line per invocation:
-# wall seconds, peak RSS in KiB) are kept in <results>/<scene> (by default docs/stage1-results,
+# wall seconds, peak RSS in KiB; a hand-written note.md beside them becomes the row's footnote)
+# are kept in <results>/<scene> (by default docs/stage1-results,
 # committed: the survey is measured over several sittings on machines that keep no data
 # between them), and a scene whose results are there is not run again; with --prune its dataset
 # and work folder (~GB) are deleted as soon as they are kept. Writes <out>/survey.md (and prints
@@ -98,6 +99,7 @@ print("| Scene | poses within | largest rotation / translation | within 5 deg / 
       "| purity | held-out PSNR (training) | median depth error | wall | peak RSS |")
 print("|---|---|---|---|---|---|---|---|---|---|")
 tot = tot_in = tot_5 = lab = lab_ok = 0
+notes = []
 for s in done:
     with open(os.path.join(res, s, "report.json")) as f:
         r = json.load(f)
@@ -118,16 +120,25 @@ for s in done:
                 wall += float(p[0])
                 rss = max(rss, float(p[1]))
     name = f"*{s}*" if s in FAMILY else s
+    # A scene's note.md (one line, written by hand) says what the figures alone do not (e.g. a
+    # wall time from a run that shared the machine or lost an invocation's line).
+    mark = ""
+    if os.path.isfile(os.path.join(res, s, "note.md")):
+        with open(os.path.join(res, s, "note.md")) as f:
+            notes.append(f"{s}: " + " ".join(f.read().split()))
+        mark = f" [{len(notes)}]"
     lo = f"{100 * min(shares):.1f}-{100 * max(shares):.1f} % ({ok} of {len(shares)})" if shares else "-"
     pur = [v for _, v in r.get("label_purity") or []]
     pu = f"{100 * min(pur):.1f}-{100 * max(pur):.1f} %" if pur else "-"
     print(f"| {name} | {within} of {n} | {rot:.2f} deg / {tr:.2f} cm | {w5} of {n} | {lo} | {pu} "
           f"| {r['heldout_psnr_srgb']:.2f} dB ({r['train_psnr_srgb']:.2f}) "
-          f"| {100 * r['heldout_median_depth_error_m']:.2f} cm | {wall:.0f} s | {rss / 1048576:.2f} GB |")
+          f"| {100 * r['heldout_median_depth_error_m']:.2f} cm | {wall:.0f} s{mark} | {rss / 1048576:.2f} GB |")
 missing = [s for s in ORDER if s not in done]
 if done:
     print(f"| **all {len(done)} scene{'s' * (len(done) != 1)}** | **{tot_in} of {tot}** ({100 * tot_in / max(tot, 1):.0f} %) | "
           f"| {tot_5} of {tot} | {lab_ok} of {lab} | | | | | |")
+if notes:
+    print("\n" + "\n".join(f"[{i + 1}] {n}" for i, n in enumerate(notes)))
 if missing:
     print(f"\nNot measured yet: {', '.join(missing)}.")
 PY
