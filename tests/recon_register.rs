@@ -156,6 +156,11 @@ fn surface(shape: Shape, a: f32, b: f32) -> (Vec3, Vec3) {
     }
 }
 
+/// The capture's noise along the normal: uniform with σ ≈ 0.58 mm, at most 1.7 mm.
+fn normal_noise(rng: &mut SplitMix) -> f32 {
+    (rng.f32() - 0.5) * 0.002 * 3f32.sqrt()
+}
+
 /// Points of `shape` seen from roughly direction `view` (object frame): the surface facing it
 /// (n·view > −0.2), sampled afresh with `seed` at ~`spacing`, 1 mm noise along the normal, lit
 /// by `light` (brightness ∝ 0.4 + 0.6 max(0, n·light), times `gain`), placed by `pose`.
@@ -183,8 +188,7 @@ fn observe(
         if nrm.dot(view.normalize()) < -0.2 {
             continue;
         }
-        let noise = (rng.f32() - 0.5) * 0.002 * 3f32.sqrt(); // σ ≈ 0.58 mm, max 1.7 mm
-        let p = p + nrm * noise;
+        let p = p + nrm * normal_noise(&mut rng);
         let shade = gain * (0.4 + 0.6 * nrm.dot(light.normalize()).max(0.0));
         let albedo = match shape {
             Shape::Tin => [0.42, 0.74, 0.62],
@@ -544,7 +548,7 @@ fn observe_pot(glint: f32, pose: &Rigid, seed: u64) -> PointCloud {
     let (r, h, spacing) = (0.1f32, 0.15f32, 0.006f32);
     let q = pose.quat();
     let mut put = |p: Vec3, n: Vec3, rgb: [f32; 3], rng: &mut SplitMix| {
-        let p = p + n * (rng.f32() - 0.5) * 0.002 * 3f32.sqrt();
+        let p = p + n * normal_noise(rng);
         c.push(
             (q * p + Vec3::from_array(pose.translation)).to_array(),
             (q * n).to_array(),
