@@ -294,6 +294,57 @@ fn ray_stats_count_what_the_traversal_did() {
 }
 
 #[test]
+fn an_object_in_front_of_the_background_is_traversed_first() {
+    // Component 0 a large background: a faint 3 m wide slab of 400 surfels at z in [-0.5, 0]
+    // (fainter than T_MIN in total, so it would all be composited on its own); component 1 a
+    // small opaque stack in front of it (z = 1). A ray through both is cut at the object:
+    // the composite is the object's hits alone, matching the reference, and since the object
+    // is traversed first (smallest bounds) the background's traversal is clipped at the cut
+    // and takes none of its hits (in component order it took 202 of them first).
+    let mut rng = SplitMix(9);
+    let mut background = Surfels::with_sh_degree(0);
+    for i in 0..400 {
+        let mu = [
+            rng.range(-0.05, 0.05),
+            rng.range(-0.05, 0.05),
+            -0.5 * i as f32 / 400.0,
+        ];
+        push(
+            &mut background,
+            mu,
+            [0.0, 0.0, 0.0, 1.0],
+            [1.5, 1.5],
+            0.02,
+            0.3,
+        );
+    }
+    let mut object = stack(8, 0.9, |i| i as f32 / 8.0);
+    for p in object.position.iter_mut() {
+        p[2] += 1.0;
+    }
+    let scene = scene_of(vec![background, object]);
+    let id = vec![Rigid::IDENTITY; 2];
+    let traced = TraceScene::new(&scene);
+    let placed = traced.place(&id);
+    let (o, d) = ([0.01, 0.02, 2.0], [0.0, 0.0, -1.0]);
+    let mut stats = RayStats::default();
+    let fast = placed.composite_stats(o, d, 0.0, f32::INFINITY, &mut stats);
+    let slow = composite_brute(&scene, &id, o, d, 0.0, f32::INFINITY);
+    assert_eq!(fast.hits, slow.hits);
+    close("object in front", &fast, &slow, 1e-5);
+    // 0.1^4 = T_MIN: the object's fourth hit ends the ray (α = 0.9 at the centre).
+    assert!(fast.hits <= 5, "{fast:?}");
+    assert!(stats.hits < 10, "background hits taken: {stats:?}");
+    // Without the object, the same ray composites the whole background.
+    let alone = scene_of(vec![scene.components[0].surfels.clone()]);
+    let traced_alone = TraceScene::new(&alone);
+    let r = traced_alone
+        .place(&id[..1])
+        .composite(o, d, 0.0, f32::INFINITY);
+    assert_eq!(r.hits, 400);
+}
+
+#[test]
 fn equal_depths_break_ties_by_component_then_index() {
     // Identical geometry, so every t is bit-identical in both implementations; only the
     // materials tell the order. Two components share the ties, and 2.5 batches of them.

@@ -103,11 +103,21 @@ impl Tally for RayStats {
 pub struct Placed<'a> {
     pub(super) scene: &'a TraceScene,
     pub(super) instances: Vec<Instance>,
+    /// The non-empty components, smallest world bounds first: the order a composite traverses
+    /// them in. Its result does not depend on the order (a batch holds the nearest hits
+    /// whatever order they arrive in), but its cost does: a camera ray that meets an object in
+    /// front of the background, traversing the object first, is cut at the object's surface
+    /// before the background's traversal starts, which then prunes everything behind it; in
+    /// component order it tested the wall's surfels first and then shifted each of the
+    /// object's hits to the front of the sorted batch, settling the batch again each time. On
+    /// the 200k room (`cargo bench --bench trace`): 54.4 leaf tests and 29.1 hits taken per
+    /// camera ray rather than 60.5 and 33.1, 18 shifts per ray rather than 107.
+    order: Vec<usize>,
 }
 
 impl<'a> Placed<'a> {
     pub(crate) fn new(scene: &'a TraceScene, transforms: &[Rigid]) -> Self {
-        let instances = scene
+        let instances: Vec<Instance> = scene
             .blas
             .iter()
             .zip(transforms)
@@ -137,7 +147,24 @@ impl<'a> Placed<'a> {
                 }
             })
             .collect();
-        Placed { scene, instances }
+        let volume = |inst: &Instance| {
+            inst.bounds
+                .map(|(lo, hi)| (hi - lo).max(Vec3::ZERO).element_product())
+        };
+        let mut order: Vec<usize> = (0..instances.len())
+            .filter(|&c| volume(&instances[c]).is_some())
+            .collect();
+        // A stable sort, so equal volumes keep the component order (a NaN volume sorts last).
+        order.sort_by(|&a, &b| {
+            volume(&instances[a])
+                .unwrap()
+                .total_cmp(&volume(&instances[b]).unwrap())
+        });
+        Placed {
+            scene,
+            instances,
+            order,
+        }
     }
 
     /// Composites the hits of the ray `origin + t dir`, `t_min < t < t_max`, front to back
@@ -235,7 +262,8 @@ impl<'a> Placed<'a> {
         let mut carry = 1.0f32;
         loop {
             let mut batch = HitBatch::new(carry, t_max);
-            for (c, (inst, blas)) in self.instances.iter().zip(&self.scene.blas).enumerate() {
+            for &c in &self.order {
+                let (inst, blas) = (&self.instances[c], &self.scene.blas[c]);
                 let (Some(bounds), Some(bvh)) = (inst.bounds, blas.bvh.as_ref()) else {
                     continue;
                 };
@@ -301,6 +329,9 @@ impl<'a> Placed<'a> {
         let d = Vec3::from_array(dir);
         let inv_d = d.recip();
         let mut tr = 1.0f32;
+        // In component order, not `order`: on the 200k room the smallest-first order made a
+        // visibility ray test 50.2 surfels rather than 43.4 (rays leave surfaces, and the
+        // background they mostly leave from blocks them sooner than an object does).
         for (inst, blas) in self.instances.iter().zip(&self.scene.blas) {
             let (Some(bounds), Some(bvh)) = (inst.bounds, blas.bvh.as_ref()) else {
                 continue;
