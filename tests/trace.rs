@@ -296,7 +296,7 @@ fn ray_stats_count_what_the_traversal_did() {
 #[test]
 fn an_object_in_front_of_the_background_is_traversed_first() {
     // Component 0 a large background: a faint 3 m wide slab of 400 surfels at z in [-0.5, 0]
-    // (fainter than T_MIN in total, so it would all be composited on its own); component 1 a
+    // (0.98^400 ≈ 3e-4 > T_MIN, so on its own all of it is composited); component 1 a
     // small opaque stack in front of it (z = 1). A ray through both is cut at the object:
     // the composite is the object's hits alone, matching the reference, and since the object
     // is traversed first (smallest bounds) the background's traversal is clipped at the cut
