@@ -1,7 +1,8 @@
 //! Stage 1, reconstruct (paper §"Interactive Scene Reconstruction"): initialisation from RGB-D
 //! ([`init`]), object poses per state ([`register`]), the background/object graph cut
 //! ([`segment`], [`maxflow`]), completion (eq. completion-mask, [`completion`]), the training
-//! loop ([`train`]) and the stage as a function of files ([`run`]); [`align`] estimates object
+//! loop ([`train`]), the removal of object surfels grown beneath their supports ([`support`]) and
+//! the stage as a function of files ([`run`]); [`align`] estimates object
 //! poses by rendering, an alternative to [`register`].
 
 pub mod align;
@@ -11,4 +12,5 @@ pub mod maxflow;
 pub mod register;
 pub mod run;
 pub mod segment;
+pub mod support;
 pub mod train;

@@ -12,14 +12,16 @@
 //!    components ([`init::initial_components`]).
 //! 3. Clean the labels with the graph cut ([`segment::segment`]) over the reference state.
 //! 4. Train ([`train::Trainer`]); at a third of the iterations, seed surfels where the render lies
-//!    behind the captured depth (eq. completion-mask).
+//!    behind the captured depth (eq. completion-mask). Then drop the object surfels grown
+//!    beneath the surface their object stands on ([`support::beneath_support`]); a resumed
+//!    finished run repeats only this step and the next.
 //! 5. Write `scene.glb`, `report.json` (held-out PSNR, depth error, pose errors, label shares),
 //!    `log.jsonl` (losses) and `checkpoint.json` (resumable with `--resume`); `poses.json`, the
 //!    poses of step 2 before training ([`PoseSteps`]), is written when they are found, so the
 //!    report can say where a pose error entered.
 
 use super::train::{render_state, Model, RawComponent, Settings, Trainer};
-use super::{align, completion, init, register, segment};
+use super::{align, completion, init, register, segment, support};
 use crate::error::{Error, Result};
 use crate::eval::pose::pose_error;
 use crate::eval::report::{
@@ -84,6 +86,10 @@ pub struct Report {
     /// Per object: share of its surfels whose nearest observed surface point (any label's,
     /// reference state) is its own ([`crate::eval::labels::label_purity`]).
     pub label_purity: Vec<(String, f64)>,
+    /// Per object: surfels dropped after training as lying beneath the surface the object stands
+    /// on ([`super::support`]).
+    #[serde(default)]
+    pub beneath_support_dropped: Vec<(String, usize)>,
     pub oracle_poses: bool,
 }
 
@@ -443,6 +449,38 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     )?;
     bar.finish();
 
+    // Object surfels grown under the floor or table their object stands on (its mirror image
+    // in a glossy support) are dropped before the scene is written ([`support`]). Only the
+    // reference state's training views are consulted, in whose frame the objects' surfels lie.
+    let reference = init::state_cloud(&train[0], &init::BackprojectOptions::default());
+    let mut beneath = Vec::new();
+    for c in 0..trainer.model.components.len() {
+        let comp = &trainer.model.components[c];
+        if comp.id == 0 {
+            continue;
+        }
+        let positions: Vec<[f32; 3]> = comp
+            .position
+            .chunks_exact(3)
+            .map(|p| [p[0], p[1], p[2]])
+            .collect();
+        let flags = support::beneath_support(&reference, &positions);
+        let keep: Vec<usize> = (0..positions.len()).filter(|&i| !flags[i]).collect();
+        beneath.push((comp.name.clone(), positions.len() - keep.len()));
+        trainer.keep_surfels(c, &keep);
+    }
+    say(
+        opts.quiet,
+        &format!(
+            "dropped object surfels beneath their supports: {}",
+            beneath
+                .iter()
+                .map(|(n, k)| format!("{n} {k}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    );
+
     let scene = scene_of(&trainer.model, &dataset, &train_states);
     crate::io::write_scene(&scene, &opts.out.join("scene.glb"))?;
     let report = evaluate(
@@ -454,6 +492,10 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         opts,
         t0,
     )?;
+    let report = Report {
+        beneath_support_dropped: beneath,
+        ..report
+    };
     let mut files = AtomicFiles::new();
     files.write(
         &opts.out.join("report.json"),
@@ -630,6 +672,7 @@ fn evaluate(
         pose_errors,
         label_share,
         label_purity,
+        beneath_support_dropped: Vec::new(),
         oracle_poses: opts.oracle_poses,
     })
 }

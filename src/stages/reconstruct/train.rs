@@ -811,17 +811,24 @@ impl Trainer {
             let keep: Vec<usize> = (0..comp.len())
                 .filter(|&i| sigmoid(comp.logit_opacity[i]) >= s.prune_opacity)
                 .collect();
-            if keep.len() < comp.len() {
-                comp.gather(&keep);
-                for g in 0..comp.groups() {
-                    let gi = self.adam.group_index(&group_name(c, g)).unwrap();
-                    self.adam.keep_points(gi, &keep);
-                }
-            }
-            self.grad_accum[c] = vec![0.0; comp.len()];
-            self.grad_count[c] = vec![0; comp.len()];
+            self.keep_surfels(c, &keep);
         }
         self.rng = rng.next_u64();
+    }
+
+    /// Component `c` keeps the surfels `keep` (ascending), with their optimiser moments; the
+    /// densification statistics start afresh.
+    pub fn keep_surfels(&mut self, c: usize, keep: &[usize]) {
+        let comp = &mut self.model.components[c];
+        if keep.len() < comp.len() {
+            comp.gather(keep);
+            for g in 0..comp.groups() {
+                let gi = self.adam.group_index(&group_name(c, g)).unwrap();
+                self.adam.keep_points(gi, keep);
+            }
+        }
+        self.grad_accum[c] = vec![0.0; comp.len()];
+        self.grad_count[c] = vec![0; comp.len()];
     }
 
     /// Appends new surfels to component `c` (completion, eq. completion-mask), with fresh
