@@ -20,17 +20,31 @@ fn check(a: &[[f32; 3]], b: &[[f32; 3]]) {
     assert_eq!(a.len(), b.len(), "images differ in size");
 }
 
+/// Σ `f(a_i, b_i)` over the pixels, in parallel but in one fixed order: fixed chunks, each summed
+/// in pixel order, then the chunks' sums in chunk order. rayon's `sum` splits adaptively, so its
+/// rounding could differ between two runs on the same images (an evaluation and its re-run must
+/// agree to the bit).
+fn ordered_sum(
+    a: &[[f32; 3]],
+    b: &[[f32; 3]],
+    f: impl Fn(&[f32; 3], &[f32; 3]) -> f64 + Sync,
+) -> f64 {
+    const CHUNK: usize = 4096;
+    let partial: Vec<f64> = a
+        .par_chunks(CHUNK)
+        .zip(b.par_chunks(CHUNK))
+        .map(|(x, y)| x.iter().zip(y).map(|(p, q)| f(p, q)).sum::<f64>())
+        .collect();
+    partial.iter().sum()
+}
+
 fn psnr_mapped(a: &[[f32; 3]], b: &[[f32; 3]], f: impl Fn(f32) -> f32 + Sync) -> f64 {
     check(a, b);
-    let se: f64 = a
-        .par_iter()
-        .zip(b)
-        .map(|(p, q)| {
-            (0..3)
-                .map(|c| ((f(p[c]) - f(q[c])) as f64).powi(2))
-                .sum::<f64>()
-        })
-        .sum();
+    let se = ordered_sum(a, b, |p, q| {
+        (0..3)
+            .map(|c| ((f(p[c]) - f(q[c])) as f64).powi(2))
+            .sum::<f64>()
+    });
     let mse = se / (3 * a.len()) as f64;
     // Identical images give +inf, as 10 log10(1 / 0) should.
     -10.0 * mse.log10()
@@ -55,11 +69,9 @@ pub fn psnr_hdr(rendered: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
         .flat_map(|p| p.iter().map(|&v| v as f64))
         .fold(0.0, f64::max)
         .max(1e-6);
-    let se: f64 = rendered
-        .par_iter()
-        .zip(reference)
-        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>())
-        .sum();
+    let se = ordered_sum(rendered, reference, |a, b| {
+        (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>()
+    });
     let mse = se / (3 * rendered.len()) as f64;
     10.0 * (peak * peak / mse).log10()
 }
