@@ -321,6 +321,11 @@ SYMMETRIES = {
     # Blender's checker (object coordinates, cells of 1/scale with a boundary through the axis)
     # takes parity(|floor(x)|) + parity(|floor(y)|); a half turn about +Z flips both parities.
     "ball": [{"axis": [0, 1, 0], "order": 2}],
+    # Blender's Wave bands along object x with the sine profile are 0.5 - 0.5 cos(k x), even in
+    # x, and a half turn about +Z maps x to -x: the striped cone and the lamp (a solid of
+    # revolution in plain copper under a striped shade) look the same after it.
+    "cone_toy": [{"axis": [0, 1, 0], "order": 2}],
+    "lamp": [{"axis": [0, 1, 0], "order": 2}],
     "pot": [{"axis": [0, 1, 0], "order": 2}],  # plain steel body, one handle each side
     "vase": [{"axis": [0, 1, 0], "order": 0}],  # plain glossy solid of revolution
     "ring": [{"axis": [0, 1, 0], "order": 0}],  # plain gold torus about +Z
