@@ -65,14 +65,15 @@ def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):
         assert p["rotation_deg"] <= p["rotation_deg_ignoring_symmetry"] + 1e-6
     # The poses before training are recorded (poses.json) and their errors reported beside the
     # final ones; the fast preset's training does not move poses (its pose refinement is off:
-    # `train::Settings::fast`), so the final error is the polished pose's, field for field.
+    # `train::Settings::fast`), so the final error is that of the pose the turn step chose,
+    # field for field.
     steps = json.loads((work / "poses.json").read_text())
-    assert steps["format"] == "lightfuse-stage1-poses/2"
-    assert len(steps["aligned"]) == len(steps["polished"]) == 2
+    assert steps["format"] == "lightfuse-stage1-poses/3"
+    assert len(steps["aligned"]) == len(steps["polished"]) == len(steps["turned"]) == 2
     for p in report["pose_errors"]:
         final = {k: p[k] for k in ("rotation_deg", "rotation_deg_ignoring_symmetry", "translation_cm")}
-        assert p["polished"] == final, p
-        assert "registered" in p and "aligned" in p, p
+        assert p["turned"] == final, p
+        assert "registered" in p and "aligned" in p and "polished" in p, p
     # A comparison image per held-out and per training view.
     assert len(report["heldout"]) == report["heldout_views"]
     for v in report["heldout"]:

@@ -800,12 +800,13 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
             )
         };
         for p in &report.pose_errors {
-            let before = match (&p.registered, &p.aligned, &p.polished) {
-                (r, Some(a), Some(q)) => format!(
-                    " (registered: {}; aligned: {}; polished: {})",
+            let before = match (&p.registered, &p.aligned, &p.polished, &p.turned) {
+                (r, Some(a), Some(q), Some(t)) => format!(
+                    " (registered: {}; aligned: {}; polished: {}; turned: {})",
                     r.as_ref().map_or("none".into(), brief),
                     brief(a),
-                    brief(q)
+                    brief(q),
+                    brief(t)
                 ),
                 _ => String::new(),
             };

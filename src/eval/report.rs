@@ -93,14 +93,17 @@ pub struct ObjectPoseError {
     #[serde(flatten)]
     pub error: PoseError,
     /// The same error of the pose point-cloud registration found, of the one the rendered
-    /// alignment chose, and of that one after the ICP polish, where training started (absent
-    /// with oracle poses and in work folders without `poses.json`): where an error entered.
+    /// alignment chose, of the better of the two after the ICP polish, and of the turn of it
+    /// the texture chose, where training started (absent with oracle poses and in work folders
+    /// without `poses.json`): where an error entered.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub registered: Option<PoseError>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub aligned: Option<PoseError>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub polished: Option<PoseError>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub turned: Option<PoseError>,
 }
 
 #[cfg(test)]
@@ -142,6 +145,7 @@ mod tests {
             registered: None,
             aligned: None,
             polished: None,
+            turned: None,
         };
         let text = serde_json::to_string(&e).expect("serialises");
         assert_eq!(

@@ -7,9 +7,10 @@
 //!    object and state, [`register::registrations`]), whose results are candidates for the
 //!    rendered alignment ([`align::object_poses_by_rendering`], which finds the right basin
 //!    where clouds cannot), whose poses ICP then polishes ([`register::Pair::polish`]) and
-//!    geometry chooses ([`register::Pair::best_fit`]); ground truth only with `--oracle-poses`.
-//!    Build the initial
-//!    components ([`init::initial_components`]).
+//!    geometry chooses ([`register::Pair::best_fit`]); then that pose turned about the vertical,
+//!    polished, where geometry ties the texture decides ([`register::Pair::choose_turn`]);
+//!    ground truth only with `--oracle-poses`. Build the initial components
+//!    ([`init::initial_components`]).
 //! 3. Clean the labels with the graph cut ([`segment::segment`]) over the reference state.
 //! 4. Train ([`train::Trainer`]); at a third of the iterations, seed surfels where the render lies
 //!    behind the captured depth (eq. completion-mask). Then drop the object surfels grown
@@ -95,20 +96,23 @@ pub struct Report {
 
 /// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
 /// identities included), as step 2 found them: by point-cloud registration (none where it
-/// failed), by the rendered alignment, and where training starts: each of the two polished by
-/// ICP in its own basin, and the better fit of the two ([`register::Pair::best_fit`]).
+/// failed), by the rendered alignment, each of the two polished by ICP in its own basin and
+/// the better fit of the two ([`register::Pair::best_fit`]), and where training starts: that
+/// pose or a polished turn of it about the vertical ([`register::Pair::choose_turn`]).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct PoseSteps {
     pub format: String,
     pub registered: Vec<Vec<Option<Rigid>>>,
     pub aligned: Vec<Vec<Rigid>>,
-    /// Where training starts: of the aligned and the registered pose, each polished
-    /// ([`register::Pair::polish`]), the better geometric fit ([`register::Pair::best_fit`]).
+    /// Of the aligned and the registered pose, each polished ([`register::Pair::polish`]),
+    /// the better geometric fit ([`register::Pair::best_fit`]).
     pub polished: Vec<Vec<Rigid>>,
+    /// Where training starts: [`register::Pair::choose_turn`] of the polished pose.
+    pub turned: Vec<Vec<Rigid>>,
 }
 
 impl PoseSteps {
-    pub const FORMAT: &'static str = "lightfuse-stage1-poses/2";
+    pub const FORMAT: &'static str = "lightfuse-stage1-poses/3";
     pub const FILE: &'static str = "poses.json";
 
     /// The record in `out`, if there is one of `states` x `objects` poses (a record of another
@@ -120,7 +124,8 @@ impl PoseSteps {
         (p.format == Self::FORMAT
             && fits(p.registered.iter().map(Vec::len).collect())
             && fits(p.aligned.iter().map(Vec::len).collect())
-            && fits(p.polished.iter().map(Vec::len).collect()))
+            && fits(p.polished.iter().map(Vec::len).collect())
+            && fits(p.turned.iter().map(Vec::len).collect()))
         .then_some(p)
     }
 }
@@ -354,10 +359,26 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                         .collect()
                 })
                 .collect();
+            // Where the shape ties turns about the vertical (a solid of revolution, a box four
+            // ways), the texture decides between them (`register::Pair::choose_turn`).
+            let turn = register::TurnOptions::default();
+            let turned: Vec<Vec<Rigid>> = polished
+                .iter()
+                .enumerate()
+                .map(|(j, row)| {
+                    row.iter()
+                        .enumerate()
+                        .map(|(o, pose)| match pairs[j][o].as_ref().filter(|_| j > 0) {
+                            Some(pair) => pair.choose_turn(pose, Vec3::Y, &limits, &turn).transform,
+                            None => *pose,
+                        })
+                        .collect()
+                })
+                .collect();
             say(
                     opts.quiet,
                     &format!(
-                        "registered {} objects in {} states in {:.1} s (point clouds, rendered views, ICP polish)",
+                        "registered {} objects in {} states in {:.1} s (point clouds, rendered views, ICP polish, turns)",
                         objects.len(),
                         train.len(),
                         t.elapsed().as_secs_f64()
@@ -369,10 +390,11 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                     format: PoseSteps::FORMAT.into(),
                     registered: initial,
                     aligned,
-                    polished: polished.clone(),
+                    polished,
+                    turned: turned.clone(),
                 },
             )?;
-            polished
+            turned
         };
         let iopts = init::InitOptions {
             voxel: opts.voxel,
@@ -642,6 +664,7 @@ fn evaluate(
                     .map(error),
                 aligned: steps.as_ref().map(|s| error(&s.aligned[j][o])),
                 polished: steps.as_ref().map(|s| error(&s.polished[j][o])),
+                turned: steps.as_ref().map(|s| error(&s.turned[j][o])),
             });
         }
     }
