@@ -769,8 +769,8 @@ fn shading_residual_sees_the_texture_turned_and_not_the_light() {
 /// 3° and 1 cm, from a turn of 240°; the plain vase, which any turn about its axis leaves the
 /// same, keeps its axis and its place on it (3°, 1 cm), whatever turn it takes; the ellipsoid
 /// (the same after a half turn about its vertical axis, not after a quarter) given 150° off
-/// goes to the basin that fits and the half turn its texture says, within 3° and 1 cm.
-/// Deterministic.
+/// goes to the basin that fits and the half turn its texture says, within 3° and 1 cm, and so
+/// it does from 20 cm away as well. Deterministic.
 #[test]
 fn choose_turn_lets_the_texture_decide_between_geometric_ties() {
     let opts = RegisterOptions::default();
@@ -824,4 +824,18 @@ fn choose_turn_lets_the_texture_decide_between_geometric_ties() {
         t * 1e3
     );
     assert!(rot < 3.0 && t < 0.01, "ellipsoid: {rot}°, {t} m");
+    // Lost in place too (20 cm off, more than the polish may move it): the translation fitted
+    // afresh to the turned rotation finds it.
+    let mut lost = given;
+    lost.translation[0] += 0.2;
+    let choice = Pair::new(&src, &tgt, &opts)
+        .unwrap()
+        .choose_turn(&lost, Vec3::Y, &limits, &turn);
+    let (rot, t) = errors(&choice.transform, &truth);
+    eprintln!(
+        "ellipsoid 20 cm off: turn {}°, {rot:.2}°, {:.2} mm",
+        choice.turn_deg,
+        t * 1e3
+    );
+    assert!(rot < 3.0 && t < 0.01, "ellipsoid 20 cm off: {rot}°, {t} m");
 }

@@ -958,7 +958,9 @@ pub struct TurnChoice {
 impl Pair {
     /// Several hypotheses kept until the texture decides between them: `pose` turned about the
     /// vertical `up` through the object (its source centroid carried by `pose`) by every
-    /// multiple of `step_deg`, each polished by ICP ([`Pair::polish`]) in its own basin. The
+    /// multiple of `step_deg`, each polished by ICP ([`Pair::polish`]) in its own basin, and
+    /// polished again from the turned rotation with the translation fitted afresh (the
+    /// registration's trimmed steps from the centroids), the better fit of the two kept. The
     /// best geometric fit ([`Registration::geometric_cost`]) defines the ties (see
     /// [`TurnOptions`]): turns the shape cannot tell apart, as a solid of revolution or a box
     /// four ways. When the given pose is among them, it stays unless another tie carries the
@@ -979,6 +981,16 @@ impl Pair {
         let up = up.normalize_or(Vec3::Y);
         let centre = Vec3::from_array(pose.transform_point(self.centroid.to_array()));
         let n = ((360.0 / opts.step_deg.max(1.0)).round() as usize).max(1);
+        let lv = &self.coarse;
+        let all: Vec<usize> = (0..lv.src.pos.len()).collect();
+        let scorer = Scorer {
+            src: &lv.src,
+            tgt: &lv.tgt,
+            tree: &lv.geo,
+            sample: &all,
+            spacing: lv.spacing,
+            opts: &self.opts,
+        };
         let fits: Vec<(f32, Registration)> = (0..n)
             .into_par_iter()
             .map(|s| {
@@ -992,8 +1004,21 @@ impl Pair {
                     translation: (centre - q * centre).to_array(),
                 }
                 .compose(pose);
-                let fit = self
-                    .polish(&[turned], limits)
+                // Turned about its own centroid the object stays where `pose` put it; when
+                // that place is wrong too (an object registration lost), the translation
+                // fitted afresh to the turned rotation is a second start.
+                let rotation = turned.quat().normalize();
+                let refit = Rigid {
+                    rotation: rotation.to_array(),
+                    translation: scorer.fit_translation(rotation).0.to_array(),
+                };
+                let fit = [turned, refit]
+                    .iter()
+                    .map(|s| {
+                        self.polish(&[*s], limits)
+                            .unwrap_or_else(|| self.evaluate(s))
+                    })
+                    .min_by(|a, b| a.geometric_cost.total_cmp(&b.geometric_cost))
                     .unwrap_or_else(|| self.evaluate(&turned));
                 (deg, fit)
             })
