@@ -577,6 +577,18 @@ struct Level {
 }
 
 impl Level {
+    /// A [`Scorer`] of this level's clouds over the source points `sample`.
+    fn scorer<'a>(&'a self, sample: &'a [usize], opts: &'a RegisterOptions) -> Scorer<'a> {
+        Scorer {
+            src: &self.src,
+            tgt: &self.tgt,
+            tree: &self.geo,
+            sample,
+            spacing: self.spacing,
+            opts,
+        }
+    }
+
     fn new(source: &PointCloud, target: &PointCloud, spacing: f32, opts: &RegisterOptions) -> Self {
         let src = Side::new(source, spacing / 2.0);
         let tgt = Side::new(target, spacing / 2.0);
@@ -655,15 +667,7 @@ impl Pair {
     fn quality(&self, q: Quat, t: Vec3) -> Registration {
         let lv = &self.fine;
         let all: Vec<usize> = (0..lv.src.pos.len()).collect();
-        let scorer = Scorer {
-            src: &lv.src,
-            tgt: &lv.tgt,
-            tree: &lv.geo,
-            sample: &all,
-            spacing: lv.spacing,
-            opts: &self.opts,
-        };
-        let score = scorer.score(q, t, &all);
+        let score = lv.scorer(&all, &self.opts).score(q, t, &all);
         let inlier = 2.0 * lv.spacing;
         let mut n_in = 0usize;
         let (mut geo2, mut col2) = (0.0f64, 0.0f64);
@@ -715,14 +719,7 @@ impl Pair {
         }
         sample.truncate(opts.coarse_samples.max(MIN_POINTS));
         sample.sort_unstable();
-        let scorer = Scorer {
-            src: &lv.src,
-            tgt: &lv.tgt,
-            tree: &lv.geo,
-            sample: &sample,
-            spacing: lv.spacing,
-            opts,
-        };
+        let scorer = lv.scorer(&sample, opts);
         let grid = rotation_grid(opts.rotation_step_deg);
         let mut scored: Vec<(f32, usize, Vec3)> = grid
             .par_iter()
@@ -981,16 +978,8 @@ impl Pair {
         let up = up.normalize_or(Vec3::Y);
         let centre = Vec3::from_array(pose.transform_point(self.centroid.to_array()));
         let n = ((360.0 / opts.step_deg.max(1.0)).round() as usize).max(1);
-        let lv = &self.coarse;
-        let all: Vec<usize> = (0..lv.src.pos.len()).collect();
-        let scorer = Scorer {
-            src: &lv.src,
-            tgt: &lv.tgt,
-            tree: &lv.geo,
-            sample: &all,
-            spacing: lv.spacing,
-            opts: &self.opts,
-        };
+        let all: Vec<usize> = (0..self.coarse.src.pos.len()).collect();
+        let scorer = self.coarse.scorer(&all, &self.opts);
         let fits: Vec<(f32, Registration)> = (0..n)
             .into_par_iter()
             .map(|s| {
