@@ -972,9 +972,11 @@ impl Pair {
     /// reference colours onto state k with a clearly lower [`Pair::shading_residual`] (a
     /// striped shade turned); when it is not (the geometry found a better basin: an object
     /// registration lost), the tie with the lowest shading residual is taken, the best fit
-    /// when no tie has one, unless the given pose fits nearly as well ([`TurnOptions::veto_cost`])
-    /// and its own residual is clearly lower than that tie's: the texture vetoes the geometry. Objects in rooms are turned about the vertical when moved, which is
-    /// why only those turns are tried: any other rotation stays as registration found it.
+    /// when no tie has one, unless the given pose fits nearly as well
+    /// ([`TurnOptions::veto_cost`]) and its own residual is clearly lower than that tie's: the
+    /// texture vetoes the geometry. Objects in rooms are turned about the vertical when moved,
+    /// which is why only those turns are tried: any other rotation stays as registration found
+    /// it.
     /// Turns are evaluated in parallel and collected in order, so the choice does not depend
     /// on the thread count.
     pub fn choose_turn(
