@@ -292,7 +292,7 @@ pub fn colour_features(rgb: &[[f32; 3]]) -> Vec<[f32; 3]> {
     let raw: Vec<[f32; 3]> = rgb
         .iter()
         .map(|c| {
-            let l = c.map(|x| x.max(COLOUR_FLOOR).ln());
+            let l = log_rgb(*c);
             let m = (l[0] + l[1] + l[2]) / 3.0;
             [2.0 * (l[0] - m), 2.0 * (l[1] - m), LUMINANCE_WEIGHT * m]
         })
@@ -301,6 +301,12 @@ pub fn colour_features(rgb: &[[f32; 3]]) -> Vec<[f32; 3]> {
     raw.iter()
         .map(|f| std::array::from_fn(|d| f[d] - med[d]))
         .collect()
+}
+
+/// ln of an observed RGB, floored at [`COLOUR_FLOOR`]: the one log colour of
+/// [`colour_features`] and [`Pair::shading_residual`].
+fn log_rgb(c: [f32; 3]) -> [f32; 3] {
+    c.map(|x| x.max(COLOUR_FLOOR).ln())
 }
 
 fn median(mut v: Vec<f32>) -> f32 {
@@ -316,7 +322,7 @@ struct Side {
     pos: Vec<Vec3>,
     normal: Vec<Vec3>,
     feat: Vec<Vec3>,
-    /// ln of the observed RGB, floored as in [`colour_features`] ([`Pair::shading_residual`]).
+    /// ln of the observed RGB ([`log_rgb`]), for [`Pair::shading_residual`].
     log_rgb: Vec<Vec3>,
 }
 
@@ -333,7 +339,7 @@ impl Side {
             log_rgb: thin
                 .rgb
                 .iter()
-                .map(|c| Vec3::from_array(c.map(|x| x.max(COLOUR_FLOOR).ln())))
+                .map(|&c| Vec3::from_array(log_rgb(c)))
                 .collect(),
         }
     }
@@ -1048,15 +1054,13 @@ impl Pair {
             // The geometry prefers another basin, unless the given pose is clearly better lit
             // than all of it: a thin panel's front and back are a few millimetres apart, and
             // the turned panel can fit the points better while its texture says otherwise.
-            (false, Some((i, v))) => match self.shading_residual(pose) {
-                Some(given)
-                    if fits[0].1.geometric_cost <= opts.veto_cost * best
-                        && given < v * (1.0 - opts.shading_margin) =>
-                {
-                    0
+            (false, Some((i, v))) => {
+                let near = fits[0].1.geometric_cost <= opts.veto_cost * best;
+                match near.then(|| self.shading_residual(pose)).flatten() {
+                    Some(given) if given < v * (1.0 - opts.shading_margin) => 0,
+                    _ => ties[i],
                 }
-                _ => ties[i],
-            },
+            }
             (false, None) => (0..n)
                 .min_by(|&a, &b| {
                     fits[a]

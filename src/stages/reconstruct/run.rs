@@ -331,8 +331,11 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
             // registration's estimate, right where the alignment's score chose a wrong basin
             // (study: an untextured Suzanne 136° off). The one whose geometry fits the clouds
             // best wins (`register::Pair::best_fit`; colour does not vote across lightings).
+            // Then, where the shape ties turns about the vertical (a solid of revolution, a box
+            // four ways), the texture decides between them (`register::Pair::choose_turn`).
             let limits = register::PolishLimits::default();
-            let polished: Vec<Vec<Rigid>> = aligned
+            let turn = register::TurnOptions::default();
+            let (polished, turned): (Vec<Vec<Rigid>>, Vec<Vec<Rigid>>) = aligned
                 .iter()
                 .enumerate()
                 .map(|(j, row)| {
@@ -340,7 +343,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                         .enumerate()
                         .map(|(o, pose)| {
                             let Some(pair) = pairs[j][o].as_ref().filter(|_| j > 0) else {
-                                return *pose;
+                                return (*pose, *pose);
                             };
                             // Registration's estimate, where it lies in the basin the
                             // alignment chose, is a second start there.
@@ -353,28 +356,17 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
                             let hypotheses: Vec<Rigid> = std::iter::once(from_aligned)
                                 .chain(from_registered)
                                 .collect();
-                            pair.best_fit(&hypotheses)
-                                .map_or(from_aligned, |(k, _)| hypotheses[k])
+                            let polished = pair
+                                .best_fit(&hypotheses)
+                                .map_or(from_aligned, |(k, _)| hypotheses[k]);
+                            let turned = pair
+                                .choose_turn(&polished, Vec3::Y, &limits, &turn)
+                                .transform;
+                            (polished, turned)
                         })
-                        .collect()
+                        .unzip()
                 })
-                .collect();
-            // Where the shape ties turns about the vertical (a solid of revolution, a box four
-            // ways), the texture decides between them (`register::Pair::choose_turn`).
-            let turn = register::TurnOptions::default();
-            let turned: Vec<Vec<Rigid>> = polished
-                .iter()
-                .enumerate()
-                .map(|(j, row)| {
-                    row.iter()
-                        .enumerate()
-                        .map(|(o, pose)| match pairs[j][o].as_ref().filter(|_| j > 0) {
-                            Some(pair) => pair.choose_turn(pose, Vec3::Y, &limits, &turn).transform,
-                            None => *pose,
-                        })
-                        .collect()
-                })
-                .collect();
+                .unzip();
             say(
                     opts.quiet,
                     &format!(
