@@ -2,6 +2,18 @@
 
 use super::{BATCH, T_MIN};
 
+/// Below this, a running product of (1 − α) kept by multiplying and dividing in arrival order is
+/// surely below [`T_MIN`] in the exact sorted order too. The two are products of the same
+/// factors, rounded differently: the exact one by at most [`BATCH`] roundings, the running one by
+/// at most [`DRIFT_MAX`] + [`BATCH`] since it was last exact (each 2⁻²⁴ relative at most, a
+/// positive product's relative errors add to first order): (1024 + 2·128)·2⁻²⁴ ≈ 7.6·10⁻⁵,
+/// under the margin of 1.5·10⁻⁴.
+const CUT_SURELY: f32 = T_MIN * (1.0 - 1.5e-4);
+
+/// Multiplications and divisions of the running product after which it is derived exactly
+/// again (see [`CUT_SURELY`]).
+const DRIFT_MAX: u32 = 1024;
+
 /// A hit waiting to be composited. `key` = component << 32 | surfel index (the component's own
 /// numbering) breaks ties in `t`, so (t, key) orders all hits totally and a batch can resume
 /// exactly after the last one it composited.
@@ -34,6 +46,17 @@ pub(crate) fn before(a: (f32, u64), b: (f32, u64)) -> bool {
     a.0 < b.0 || (a.0 == b.0 && a.1 < b.1)
 }
 
+/// A key whose integer order is [`before`]'s on (t, key) for every t that is not NaN (a hit's
+/// never is): t's bits made monotonic (IEEE total order, −0 first made +0, which `before` counts
+/// equal), then the key. Sorting by it compares two integers, where [`before`] takes up to
+/// two float comparisons a way.
+#[inline(always)]
+fn order_key(t: f32, key: u64) -> u128 {
+    let b = (t + 0.0).to_bits();
+    let b = if b >> 31 == 1 { !b } else { b | 0x8000_0000 };
+    ((b as u128) << 64) | key as u128
+}
+
 /// The up to [`BATCH`] nearest hits accepted so far, sorted by (t, key), each with the
 /// transmittance in front of it. Its `upper` bound only shrinks: a new hit must come before it,
 /// and the BVH prunes nodes beyond `upper.0`.
@@ -48,9 +71,14 @@ pub(crate) fn before(a: (f32, u64), b: (f32, u64)) -> bool {
 /// buffer is sorted once and its transmittances derived front to back, cutting the ray at the
 /// first hit that drops the exact product below [`T_MIN`]. *Sorted*: from then on a hit (which
 /// must come before the bound) is shifted into place, evicting the farthest when full; the
-/// transmittances from its place on are marked stale and re-derived only when the running
-/// product falls below [`T_MIN`], on an eviction, or when the batch is read. Invariant: every
-/// settled hit but the last leaves at least [`T_MIN`] behind it.
+/// transmittances from its place on are marked stale, and the running product is kept by
+/// multiplying in the new hit's factor and dividing out an evicted one's. The hits at the end
+/// that it shows are surely behind the cut ([`CUT_SURELY`]) leave at once, and the bound is the
+/// last hit; the exact transmittances (and the exact cut, which may lie a few hits earlier) are
+/// derived only when the batch is read, or after [`DRIFT_MAX`] updates. So an insert costs the
+/// shift, not a pass over the hits behind it. Pruning by a bound a little beyond the exact cut
+/// only lets the traversal take hits the reading then drops: the batch read is the definition's.
+/// Invariant: every settled hit but the last leaves at least [`T_MIN`] behind it.
 pub(crate) struct HitBatch {
     hits: [Hit; BATCH],
     len: usize,
@@ -61,8 +89,14 @@ pub(crate) struct HitBatch {
     /// Transmittance behind all buffered hits: the running product, exact when everything is
     /// settled.
     behind: f32,
-    /// The buffer ends at the hit that drops the transmittance below [`T_MIN`].
+    /// The buffer ends at a hit that drops the transmittance below [`T_MIN`]: exactly where
+    /// settled, surely (it may end a few hits after the exact cut) where not.
     cut: bool,
+    /// Multiplications and divisions of `behind` since it was last derived exactly.
+    drift: u32,
+    /// Times `drift` reached [`DRIFT_MAX`] (for the tests: that path is exercised).
+    #[cfg(test)]
+    drift_settles: u32,
     upper: (f32, u64),
     carry: f32,
 }
@@ -78,6 +112,9 @@ impl HitBatch {
             settled: 0,
             behind: carry,
             cut: false,
+            drift: 0,
+            #[cfg(test)]
+            drift_settles: 0,
             // Key 0 is the smallest, so (t, key) < (t_max, 0) means t < t_max.
             upper: (t_max, 0),
             carry,
@@ -108,10 +145,10 @@ impl HitBatch {
             }
             return;
         }
-        let evict = self.len == BATCH;
-        if evict {
+        if self.len == BATCH {
             // The farthest hit leaves (the new one comes before it: it was accepted).
             self.len -= 1;
+            self.behind /= 1.0 - self.hits[self.len].alpha;
         }
         let mut p = self.len;
         while p > 0 && before((hit.t, hit.key), (self.hits[p - 1].t, self.hits[p - 1].key)) {
@@ -122,9 +159,28 @@ impl HitBatch {
         self.len += 1;
         self.settled = self.settled.min(p);
         self.behind *= 1.0 - hit.alpha;
-        // An eviction takes a factor out of the running product; a cut may move earlier.
-        if evict || self.cut || self.behind < T_MIN {
+        // Hits the product in front of them has surely left below T_MIN leave too.
+        let mut removed = 0;
+        while self.len > 1 {
+            let last = self.hits[self.len - 1].alpha;
+            let without = self.behind / (1.0 - last);
+            if without >= CUT_SURELY {
+                break;
+            }
+            self.behind = without;
+            self.len -= 1;
+            removed += 1;
+        }
+        self.settled = self.settled.min(self.len);
+        self.drift += 2 + removed;
+        if self.drift > DRIFT_MAX {
+            #[cfg(test)]
+            {
+                self.drift_settles += 1;
+            }
             self.settle();
+        } else {
+            self.cut = self.behind < CUT_SURELY;
         }
         self.rebound();
     }
@@ -134,15 +190,7 @@ impl HitBatch {
     /// by its last hit when it is cut or full.
     fn order(&mut self) {
         self.filling = false;
-        self.hits[..self.len].sort_unstable_by(|a, b| {
-            if before((a.t, a.key), (b.t, b.key)) {
-                std::cmp::Ordering::Less
-            } else if before((b.t, b.key), (a.t, a.key)) {
-                std::cmp::Ordering::Greater
-            } else {
-                std::cmp::Ordering::Equal
-            }
-        });
+        self.hits[..self.len].sort_unstable_by_key(|h| order_key(h.t, h.key));
         self.settled = 0;
         self.settle();
         self.rebound();
@@ -184,6 +232,7 @@ impl HitBatch {
         }
         self.settled = self.len;
         self.behind = tr;
+        self.drift = 0;
     }
 
     /// Settles the batch once the traversal is done: its hits and their weights are exact.
@@ -228,6 +277,37 @@ mod tests {
         Hit::new(t, alpha, key, 0)
     }
 
+    /// `order_key` orders as `before` does, signed zeros, negatives, infinities and equal t
+    /// (where the key decides) included.
+    #[test]
+    fn order_key_orders_as_before() {
+        let ts = [
+            f32::NEG_INFINITY,
+            -3.5,
+            -1e-30,
+            -0.0,
+            0.0,
+            1e-30,
+            0.25,
+            0.25f32.next_up(),
+            7.0,
+            f32::MAX,
+            f32::INFINITY,
+        ];
+        for &ta in &ts {
+            for &tb in &ts {
+                for (ka, kb) in [(1u64, 2u64), (2, 1), (5, 5), (0, u64::MAX), (1 << 40, 3)] {
+                    let (a, b) = ((ta, ka), (tb, kb));
+                    assert_eq!(
+                        order_key(ta, ka) < order_key(tb, kb),
+                        before(a, b),
+                        "{a:?} vs {b:?}"
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn keeps_the_nearest_sorted_and_bounds_by_the_last() {
         let mut b = HitBatch::new(1.0, f32::INFINITY);
@@ -263,17 +343,23 @@ mod tests {
         assert!(b.accepts(2.0, 6));
     }
 
-    /// Against the definition: whatever order hits arrive in (shuffled, or nearly sorted as a
-    /// traversal yields them), the batch holds the sorted nearest hits up to BATCH or up to the
+    /// Against the definition: whatever order hits arrive in (shuffled, nearly sorted as a
+    /// traversal yields them, or farthest first: thousands of hits, each evicting or cutting the
+    /// last, so the running product is re-derived after DRIFT_MAX updates), the batch holds the sorted nearest hits up to BATCH or up to the
     /// first that drops the transmittance below T_MIN, with the weights of the sequential
     /// product in sorted order, bit for bit; and resumes behind the last of them.
     #[test]
     fn holds_the_sorted_prefix_whatever_the_arrival_order() {
         use crate::scene::synthetic::SplitMix;
         let mut rng = SplitMix(7);
-        let mut cuts = 0;
+        let (mut cuts, mut drift_settles) = (0, 0);
         for case in 0..400 {
-            let n = 1 + (rng.range(0.0, 3.0 * BATCH as f32)) as usize;
+            let reversed = case % 5 == 4;
+            let n = if reversed {
+                1500 + (rng.range(0.0, 1500.0)) as usize
+            } else {
+                1 + (rng.range(0.0, 3.0 * BATCH as f32)) as usize
+            };
             let faint = case % 2 == 0;
             let mut all: Vec<Hit> = (0..n)
                 .map(|i| {
@@ -284,13 +370,16 @@ mod tests {
                     };
                     // Some equal t, so the key decides.
                     let t = (rng.range(0.0, 50.0) as u32) as f32 * 0.1;
+                    let t = if reversed { rng.range(0.0, 50.0) } else { t };
                     hit(t, i as u64, alpha)
                 })
                 .collect();
             let carry = rng.range(0.01, 1.0);
             // Arrival order: shuffled, or sorted with local swaps.
             let mut arrival = all.clone();
-            if case % 3 == 0 {
+            if reversed {
+                arrival.sort_by(|a, b| b.t.total_cmp(&a.t).then(b.key.cmp(&a.key)));
+            } else if case % 3 == 0 {
                 arrival.sort_by(|a, b| a.t.total_cmp(&b.t).then(a.key.cmp(&b.key)));
                 for i in 1..n {
                     if rng.range(0.0, 1.0) < 0.3 {
@@ -309,6 +398,7 @@ mod tests {
                     b.insert(*h);
                 }
             }
+            drift_settles += b.drift_settles;
             b.finish();
             // The definition.
             all.sort_by(|a, b| a.t.total_cmp(&b.t).then(a.key.cmp(&b.key)));
@@ -330,5 +420,9 @@ mod tests {
             assert_eq!(b.resume().1, tr, "case {case}");
         }
         assert!(cuts > 50, "cases that reach T_MIN: {cuts}");
+        assert!(
+            drift_settles > 20,
+            "re-derivations after DRIFT_MAX: {drift_settles}"
+        );
     }
 }
