@@ -52,15 +52,19 @@ pub(super) fn lower_clip(t: f32) -> f32 {
 }
 
 /// Traverses `$bvh` (an obvhs `CwBvh`) along the local ray `$o + t $d` for `t_min < t`, running
-/// `$leaf` with `$prim` bound to each primitive (leaf slot) whose box the ray enters: obvhs's own
-/// traversal loop, its `traverse!` macro, with [`node_hits`] as the node test, clipped below at
+/// `$leaves` with `$base` bound to the node's first primitive slot and `$bits` to the mask of its
+/// primitives (leaf slots `$base + bit`) whose leaf box the ray enters: obvhs's own traversal loop,
+/// its `traverse!` macro, with [`node_hits`] as the node test, clipped below at
 /// [`lower_clip`]`($t_min)` and above at `$t_far`, an expression evaluated at every node so that a
-/// far bound that shrinks while the traversal runs (a filling batch) prunes at once. `$tally`
-/// (a `super::Tally`) counts the nodes and leaf tests. A macro, not a function taking a closure:
-/// `$leaf` may `return` from the enclosing function (a blocked visibility ray) and borrows what
-/// `$t_far` reads. One copy for the composite's and the visibility ray's traversals.
+/// far bound that shrinks while the traversal runs (a filling batch) prunes at once. The leaves
+/// are handled in the node test itself, which returns only the internal children: that is where
+/// obvhs's loop would take them one by one next, highest bit first, before any other node, so
+/// the order is the same, and a node's leaves can be tested together ([`LeafGroups`]). `$tally` (a
+/// `super::Tally`) counts the nodes. A macro, not a function taking a closure: `$leaves` may
+/// `return` from the enclosing function (a blocked visibility ray) and borrows what `$t_far`
+/// reads. One copy for the composite's and the visibility ray's traversals.
 macro_rules! traverse_clipped {
-    ($bvh:expr, $o:expr, $d:expr, $t_min:expr, $t_far:expr, $tally:expr, |$prim:ident| $leaf:block) => {{
+    ($bvh:expr, $o:expr, $d:expr, $t_min:expr, $t_far:expr, $tally:expr, |$base:ident, $bits:ident| $leaves:block) => {{
         let ray = obvhs::ray::Ray::new($o.to_array().into(), $d.to_array().into(), $t_min, $t_far);
         let node_ray = $crate::trace::node::NodeRay::new(&ray);
         let t_lo = $crate::trace::node::lower_clip($t_min);
@@ -72,17 +76,64 @@ macro_rules! traverse_clipped {
             state,
             {
                 $tally.node();
-                $crate::trace::node::node_hits(node, &node_ray, state.oct_inv4, t_lo, $t_far)
+                let mask =
+                    $crate::trace::node::node_hits(node, &node_ray, state.oct_inv4, t_lo, $t_far);
+                let $bits = mask & 0x00ff_ffff;
+                if $bits != 0 {
+                    let $base = node.primitive_base_idx as usize;
+                    $leaves
+                }
+                mask & 0xff00_0000
             },
-            {
-                $tally.leaf_test();
-                let $prim = state.primitive_id as usize;
-                $leaf
-            }
+            {}
         );
     }};
 }
 pub(super) use traverse_clipped;
+
+/// A node's primitive mask in groups of up to four slots, highest bit first (the order obvhs's
+/// loop takes them in): `(slots, live)`, the unused lanes repeating the first slot with their
+/// `live` bit clear.
+pub(super) struct LeafGroups {
+    base: usize,
+    bits: u32,
+}
+
+impl LeafGroups {
+    #[inline(always)]
+    pub fn new(base: usize, bits: u32) -> Self {
+        LeafGroups { base, bits }
+    }
+}
+
+impl Iterator for LeafGroups {
+    type Item = ([usize; 4], u32);
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.bits == 0 {
+            return None;
+        }
+        let mut slots = [0usize; 4];
+        let mut live = 0u32;
+        for (lane, slot) in slots.iter_mut().enumerate() {
+            if self.bits == 0 {
+                break;
+            }
+            let bit = 31 - self.bits.leading_zeros();
+            self.bits &= !(1u32 << bit);
+            *slot = self.base + bit as usize;
+            live |= 1 << lane;
+        }
+        let first = slots[0];
+        for (lane, slot) in slots.iter_mut().enumerate() {
+            if live & (1 << lane) == 0 {
+                *slot = first;
+            }
+        }
+        Some((slots, live))
+    }
+}
 
 /// The quantised planes of children `4i..4i+4` along one axis.
 #[inline(always)]
@@ -194,6 +245,30 @@ mod tests {
             d[(rng.range(0.0, 2.99)) as usize] = 0.0;
         }
         Ray::new(o.into(), d.into(), 0.0, rng.range(0.5, 8.0))
+    }
+
+    /// The groups take every bit once, highest first (obvhs's `firstbithigh` order, which a
+    /// visibility ray's product follows), four to a group, unused lanes off.
+    #[test]
+    fn leaf_groups_take_the_bits_highest_first() {
+        for bits in [0u32, 1, 0b1011, 0x00ff_ffff, 0x0080_0001, 0x0012_3456] {
+            let mut seen = Vec::new();
+            for (slots, live) in LeafGroups::new(100, bits) {
+                assert!(
+                    live != 0 && live & !0xf == 0 && (live + 1) & live == 0,
+                    "{live:b}"
+                );
+                for (lane, &slot) in slots.iter().enumerate() {
+                    if live & (1 << lane) != 0 {
+                        seen.push(slot - 100);
+                    } else {
+                        assert_eq!(slot, slots[0]);
+                    }
+                }
+            }
+            let want: Vec<usize> = (0..32).rev().filter(|b| bits & (1 << b) != 0).collect();
+            assert_eq!(seen, want, "{bits:#x}");
+        }
     }
 
     /// With no lower clip beyond obvhs's own, every node's mask is obvhs's, bit for bit, axis-

@@ -1,10 +1,12 @@
 //! The top level: components placed by rigid transforms, and the two ray queries.
 
 use super::batch::{before, Hit, HitBatch};
-use super::node::traverse_clipped;
+use super::node::{traverse_clipped, LeafGroups};
 use super::record::{SurfaceRecord, WeightedHit};
 use super::scene::TraceScene;
+use super::surfel::hit4;
 use super::T_MIN;
+use crate::kernel::response;
 use crate::scene::Rigid;
 use glam::{Mat3, Vec3};
 use obvhs_glam::UVec2;
@@ -273,13 +275,26 @@ impl<'a> Placed<'a> {
                 let key_base = (c as u64) << 32;
                 // Nodes wholly before the last composited hit hold nothing this batch can take;
                 // the batch's bound is the far clip, which shrinks as the batch fills.
-                traverse_clipped!(bvh, lo, ld, after.0, batch.bound(), tally, |slot| {
-                    let surfel = &blas.hit[slot];
-                    if let Some((t, alpha)) = surfel.hit(lo, ld, after.0, batch.bound()) {
-                        let key = key_base | surfel.index as u64;
-                        if before(after, (t, key)) && batch.accepts(t, key) {
-                            tally.hit();
-                            batch.insert(Hit::new(t, alpha, key, slot as u32));
+                traverse_clipped!(bvh, lo, ld, after.0, batch.bound(), tally, |base, bits| {
+                    for (slots, live) in LeafGroups::new(base, bits) {
+                        let group = slots.map(|k| &blas.hit[k]);
+                        let (kept, t, r2) = hit4(group, live, lo, ld, after.0, batch.bound());
+                        for lane in 0..4 {
+                            if live & (1 << lane) != 0 {
+                                tally.leaf_test();
+                            }
+                            if kept & (1 << lane) == 0 {
+                                continue;
+                            }
+                            let key = key_base | group[lane].index as u64;
+                            let t = t[lane];
+                            if !(before(after, (t, key)) && batch.accepts(t, key)) {
+                                continue;
+                            }
+                            if let Some(r) = response(group[lane].alpha, r2[lane]) {
+                                tally.hit();
+                                batch.insert(Hit::new(t, r.alpha, key, slots[lane] as u32));
+                            }
                         }
                     }
                 });
@@ -343,13 +358,23 @@ impl<'a> Placed<'a> {
             // which obvhs's `traverse!` doc suggests, only leaves its per-leaf loop: the
             // traversal goes on.) The far clip never shrinks: a visibility ray needs every hit,
             // not the closest.
-            traverse_clipped!(bvh, lo, ld, t_min, t_max, tally, |slot| {
-                if let Some((t, a)) = blas.hit[slot].hit(lo, ld, t_min, t_max) {
-                    if t > t_min && t < t_max {
-                        tally.hit();
-                        tr *= 1.0 - a;
-                        if tr < T_MIN {
-                            return 0.0;
+            traverse_clipped!(bvh, lo, ld, t_min, t_max, tally, |base, bits| {
+                for (slots, live) in LeafGroups::new(base, bits) {
+                    let group = slots.map(|k| &blas.hit[k]);
+                    let (kept, t, r2) = hit4(group, live, lo, ld, t_min, t_max);
+                    for lane in 0..4 {
+                        if live & (1 << lane) != 0 {
+                            tally.leaf_test();
+                        }
+                        if kept & (1 << lane) == 0 || !(t[lane] > t_min && t[lane] < t_max) {
+                            continue;
+                        }
+                        if let Some(r) = response(group[lane].alpha, r2[lane]) {
+                            tally.hit();
+                            tr *= 1.0 - r.alpha;
+                            if tr < T_MIN {
+                                return 0.0;
+                            }
                         }
                     }
                 }
