@@ -172,18 +172,8 @@ mod tests {
         for case in 0..3000 {
             let surfels: Vec<HitSurfel> = (0..4)
                 .map(|i| {
-                    let q = glam::Quat::from_euler(
-                        glam::EulerRot::XYZ,
-                        rng.range(-3.0, 3.0),
-                        rng.range(-3.0, 3.0),
-                        rng.range(-3.0, 3.0),
-                    )
-                    .to_array();
-                    let mu = [
-                        rng.range(-0.3, 0.3),
-                        rng.range(-0.3, 0.3),
-                        rng.range(-0.3, 0.3),
-                    ];
+                    let q = rotation(&mut rng);
+                    let mu = point(&mut rng, 0.3);
                     let scale = [rng.range(0.02, 0.4), rng.range(0.02, 0.4)];
                     HitSurfel::new(mu, q, scale, rng.range(0.0, 1.0), i)
                 })
@@ -238,6 +228,17 @@ mod tests {
     use crate::kernel::MIN_ALPHA;
     use crate::scene::synthetic::SplitMix;
 
+    fn rotation(rng: &mut SplitMix) -> [f32; 4] {
+        let mut angle = || rng.range(-3.0, 3.0);
+        let (a, b, c) = (angle(), angle(), angle());
+        glam::Quat::from_euler(glam::EulerRot::XYZ, a, b, c).to_array()
+    }
+
+    /// A point in the cube [−r, r]³.
+    fn point(rng: &mut SplitMix, r: f32) -> [f32; 3] {
+        [rng.range(-r, r), rng.range(-r, r), rng.range(-r, r)]
+    }
+
     /// Every hit the exact test keeps lies in the box `surfel_bounds` gives (the BVH never
     /// prunes a hit), for opacities from barely visible to capped, including hits aimed at the
     /// edge of the hittable disc, where the box is tight.
@@ -246,18 +247,8 @@ mod tests {
         let mut rng = SplitMix(3);
         let mut kept = 0;
         for _ in 0..2000 {
-            let q = glam::Quat::from_euler(
-                glam::EulerRot::XYZ,
-                rng.range(-3.0, 3.0),
-                rng.range(-3.0, 3.0),
-                rng.range(-3.0, 3.0),
-            )
-            .to_array();
-            let mu = [
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-            ];
+            let q = rotation(&mut rng);
+            let mu = point(&mut rng, 1.0);
             let scale = [rng.range(0.01, 0.5), rng.range(0.01, 0.5)];
             let opacity = rng.range(MIN_ALPHA * 0.9, 1.0);
             let s = HitSurfel::new(mu, q, scale, opacity, 0);
