@@ -301,9 +301,7 @@ impl Placed<'_> {
         let o = Vec3::from_array(ray.origin);
         let d = Vec3::from_array(ray.dir);
         hits.clear();
-        self.walk(o, d, ray.t_min, ray.t_max, &mut (), |_, c, h| {
-            hits.push((c, *h))
-        });
+        self.walk_hits(o, d, ray.t_min, ray.t_max, hits);
         // The transmittance behind the last hit, multiplied in the forward's order.
         let mut front = Front::default();
         for (_, h) in hits.iter() {

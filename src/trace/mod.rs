@@ -34,6 +34,7 @@
 
 mod backward;
 mod batch;
+mod isa;
 mod node;
 mod placed;
 mod record;
@@ -45,6 +46,7 @@ pub use crate::kernel::{CUTOFF, MAX_OPACITY, MIN_ALPHA, T_MIN};
 pub use backward::{
     scatter_material_grad, MaterialGrads, TraceGradients, TraceRay, TraceSurfelGrads, RAY_CHUNK,
 };
+pub use isa::Isa;
 pub use placed::{Placed, RayStats};
 pub use record::{RecordGrad, SurfaceRecord, WeightedHit};
 pub use scene::TraceScene;

@@ -1,6 +1,7 @@
 //! The top level: components placed by rigid transforms, and the two ray queries.
 
 use super::batch::{before, Hit, HitBatch};
+use super::isa::Isa;
 use super::node::{traverse_clipped, LeafGroups};
 use super::record::{SurfaceRecord, WeightedHit};
 use super::scene::TraceScene;
@@ -115,6 +116,8 @@ pub struct Placed<'a> {
     /// the 200k room (`cargo bench --bench trace`): 54.4 leaf tests and 29.1 hits taken per
     /// camera ray rather than 60.5 and 33.1, 20 shifts per ray rather than 107.
     order: Vec<usize>,
+    /// What the traversals run on: [`Isa::best`] unless chosen ([`Placed::with_isa`]).
+    pub(super) isa: Isa,
 }
 
 impl<'a> Placed<'a> {
@@ -164,7 +167,20 @@ impl<'a> Placed<'a> {
             scene,
             instances,
             order,
+            isa: Isa::best(),
         }
+    }
+
+    /// This placement with its traversals run on `isa` (by default the best the CPU has: the
+    /// results are the same bit for bit, only their speed differs; see [`Isa`]).
+    pub fn with_isa(mut self, isa: Isa) -> Self {
+        self.isa = isa;
+        self
+    }
+
+    /// The instruction set the traversals run on.
+    pub fn isa(&self) -> Isa {
+        self.isa
     }
 
     /// Composites the hits of the ray `origin + t dir`, `t_min < t < t_max`, front to back
@@ -210,8 +226,44 @@ impl<'a> Placed<'a> {
         self.composite_visit(origin, dir, t_min, t_max, &mut (), |h| hits.push(h))
     }
 
-    #[inline]
+    /// [`Placed::composite_visit_on`] on the placement's instruction set ([`Isa`]).
+    #[inline(always)]
     fn composite_visit(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        tally: &mut impl Tally,
+        visit: impl FnMut(WeightedHit),
+    ) -> SurfaceRecord {
+        match self.isa {
+            Isa::Baseline => self.composite_visit_on(origin, dir, t_min, t_max, tally, visit),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: an `Isa::Avx2` exists only where the CPU has the features (`Isa::best`).
+            Isa::Avx2(_) => unsafe {
+                self.composite_visit_avx2(origin, dir, t_min, t_max, tally, visit)
+            },
+        }
+    }
+
+    /// [`Placed::composite_visit_on`] compiled for [`Isa::Avx2`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    fn composite_visit_avx2(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        tally: &mut impl Tally,
+        visit: impl FnMut(WeightedHit),
+    ) -> SurfaceRecord {
+        self.composite_visit_on(origin, dir, t_min, t_max, tally, visit)
+    }
+
+    #[inline(always)]
+    fn composite_visit_on(
         &self,
         origin: [f32; 3],
         dir: [f32; 3],
@@ -242,11 +294,44 @@ impl<'a> Placed<'a> {
         record
     }
 
+    /// Appends every hit [`Placed::composite`] composites along `o + t d` to `hits`, front to
+    /// back, with its component: what the backward pass re-walks. On the placement's [`Isa`].
+    pub(super) fn walk_hits(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_min: f32,
+        t_max: f32,
+        hits: &mut Vec<(usize, Hit)>,
+    ) {
+        let push = |_, c, h: &Hit| hits.push((c, *h));
+        match self.isa {
+            Isa::Baseline => self.walk(o, d, t_min, t_max, &mut (), push),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: an `Isa::Avx2` exists only where the CPU has the features (`Isa::best`).
+            Isa::Avx2(_) => unsafe { self.walk_avx2(o, d, t_min, t_max, push) },
+        }
+    }
+
+    /// [`Placed::walk`] compiled for [`Isa::Avx2`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    fn walk_avx2(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_min: f32,
+        t_max: f32,
+        visit: impl FnMut(f32, usize, &Hit),
+    ) {
+        self.walk(o, d, t_min, t_max, &mut (), visit)
+    }
+
     /// The traversal behind [`Placed::composite`] and its backward pass: calls `visit(w,
     /// component, hit)` for every hit that is composited, front to back, with its weight
     /// `w = T α` (eq. surface-record). One copy, so the backward pass sees exactly the forward's
     /// hits in the forward's order.
-    #[inline]
+    #[inline(always)]
     pub(super) fn walk(
         &self,
         o: Vec3,
@@ -329,8 +414,40 @@ impl<'a> Placed<'a> {
         self.transmittance_tally(origin, dir, t_min, t_max, stats)
     }
 
-    #[inline]
+    /// [`Placed::transmittance_on`] on the placement's instruction set ([`Isa`]).
+    #[inline(always)]
     fn transmittance_tally(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        tally: &mut impl Tally,
+    ) -> f32 {
+        match self.isa {
+            Isa::Baseline => self.transmittance_on(origin, dir, t_min, t_max, tally),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: an `Isa::Avx2` exists only where the CPU has the features (`Isa::best`).
+            Isa::Avx2(_) => unsafe { self.transmittance_avx2(origin, dir, t_min, t_max, tally) },
+        }
+    }
+
+    /// [`Placed::transmittance_on`] compiled for [`Isa::Avx2`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    fn transmittance_avx2(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        tally: &mut impl Tally,
+    ) -> f32 {
+        self.transmittance_on(origin, dir, t_min, t_max, tally)
+    }
+
+    #[inline(always)]
+    fn transmittance_on(
         &self,
         origin: [f32; 3],
         dir: [f32; 3],
