@@ -6,9 +6,10 @@
 //! traversal's node and hit tests are four-wide `Vec4` arithmetic and mask bit-twiddling, which
 //! VEX encoding (three operands, no register copies), `lzcnt`/`tzcnt`, `popcnt` and BMI do in
 //! fewer instructions. Measured alternating against the baseline build (`cargo bench --bench
-//! trace`, 2026-11-27, two rounds): the learned scene's render 144-148 k -> 155-156 k path
-//! samples/s (+5-8 %), composited camera rays on the 200k room 1.004-1.006 -> 1.053-1.056 M/s
-//! (+5 %); visibility rays and stage 3's cached passes within their run-to-run noise.
+//! trace`, 2026-11-27, three rounds on a VM with noisy neighbours): composited camera rays on
+//! the 200k room 1.001-1.004 -> 1.109 M/s (+10 %), the learned scene's render 134-150 k ->
+//! 149-160 k path samples/s (+3-8 %); visibility rays and stage 3's cached passes within their
+//! run-to-run noise (±15 %).
 //!
 //! Same results: the same Rust source is compiled twice, and Rust never contracts a multiply and
 //! an add into a fused one nor reorders float arithmetic, whatever the target features: the
@@ -21,11 +22,10 @@
 //! when its `Isa` is [`Isa::Avx2`]; everything below them is `#[inline(always)]` down to the hit
 //! test, so it is compiled into the twin. Calling a function built with target features is
 //! `unsafe` (the CPU must have them), which an [`Isa::Avx2`] guarantees by construction: only
-//! [`Isa::best`] makes one, after `is_x86_feature_detected!`. Left to do: the composite's
-//! per-hit closure (`composite_visit_on`'s) is still called out of line in the twin; a first
-//! version with non-generic twins of `composite` and `transmittance` inlined it and measured
-//! +9-10 % on composited camera rays rather than +5 % (a single generic trampoline taking a
-//! closure measured as the twins do). Written by hand rather than with the
+//! [`Isa::best`] makes one, after `is_x86_feature_detected!`. The composite's per-hit work is a
+//! trait method marked `#[inline(always)]` (`placed::Visit`), not a closure: as a closure it
+//! stayed out of line in the twin, and composited camera rays gained +5 % rather than +10 %.
+//! Written by hand rather than with the
 //! `multiversion` crate: three one-line twins and a feature check need no dependency.
 
 /// The instruction set a [`super::Placed`] scene's traversals run on.

@@ -270,28 +270,19 @@ impl<'a> Placed<'a> {
         t_min: f32,
         t_max: f32,
         tally: &mut impl Tally,
-        mut visit: impl FnMut(WeightedHit),
+        visit: impl FnMut(WeightedHit),
     ) -> SurfaceRecord {
         let o = Vec3::from_array(origin);
         let d = Vec3::from_array(dir);
-        let mut record = SurfaceRecord::default();
-        self.walk(o, d, t_min, t_max, tally, |w, c, h| {
-            let blas = &self.scene.blas[c];
-            let slot = h.slot as usize;
-            let surfel = &blas.hit[slot];
-            let mut n = self.instances[c].rotation * Vec3::from_array(surfel.n);
-            if n.dot(d) > 0.0 {
-                n = -n;
-            }
-            let x = o + h.t * d;
-            record.add(w, h.t, x.to_array(), n.to_array(), &blas.material[slot]);
-            visit(WeightedHit {
-                component: c as u32,
-                index: surfel.index,
-                w,
-            });
-        });
-        record
+        let mut compositing = Compositing {
+            placed: self,
+            o,
+            d,
+            record: SurfaceRecord::default(),
+            visit,
+        };
+        self.walk(o, d, t_min, t_max, tally, &mut compositing);
+        compositing.record
     }
 
     /// Appends every hit [`Placed::composite`] composites along `o + t d` to `hits`, front to
@@ -304,26 +295,19 @@ impl<'a> Placed<'a> {
         t_max: f32,
         hits: &mut Vec<(usize, Hit)>,
     ) {
-        let push = |_, c, h: &Hit| hits.push((c, *h));
+        let mut push = |_, c, h: &Hit| hits.push((c, *h));
         match self.isa {
-            Isa::Baseline => self.walk(o, d, t_min, t_max, &mut (), push),
+            Isa::Baseline => self.walk(o, d, t_min, t_max, &mut (), &mut push),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: an `Isa::Avx2` exists only where the CPU has the features (`Isa::best`).
-            Isa::Avx2(_) => unsafe { self.walk_avx2(o, d, t_min, t_max, push) },
+            Isa::Avx2(_) => unsafe { self.walk_avx2(o, d, t_min, t_max, &mut push) },
         }
     }
 
     /// [`Placed::walk`] compiled for [`Isa::Avx2`].
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
-    fn walk_avx2(
-        &self,
-        o: Vec3,
-        d: Vec3,
-        t_min: f32,
-        t_max: f32,
-        visit: impl FnMut(f32, usize, &Hit),
-    ) {
+    fn walk_avx2(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, visit: &mut impl Visit) {
         self.walk(o, d, t_min, t_max, &mut (), visit)
     }
 
@@ -339,7 +323,7 @@ impl<'a> Placed<'a> {
         t_min: f32,
         t_max: f32,
         tally: &mut impl Tally,
-        mut visit: impl FnMut(f32, usize, &Hit),
+        visit: &mut impl Visit,
     ) {
         let inv_d = d.recip();
         // Hits must come strictly after `after`; u64::MAX excludes every key at t_min itself.
@@ -386,7 +370,7 @@ impl<'a> Placed<'a> {
             }
             batch.finish();
             for (w, h) in batch.weighted() {
-                visit(w, (h.key >> 32) as usize, h);
+                visit.hit(w, (h.key >> 32) as usize, h);
             }
             if batch.finishes() {
                 return;
@@ -498,5 +482,51 @@ impl<'a> Placed<'a> {
             });
         }
         tr
+    }
+}
+
+/// What a walk does with each composited hit: `hit(w, component, hit)`, front to back. A trait
+/// rather than a closure so that the composite's per-hit work ([`Compositing`]) can be marked
+/// `#[inline(always)]`: as a closure it was called out of line from the traversal's AVX2 twin
+/// ([`Isa`]).
+pub(super) trait Visit {
+    fn hit(&mut self, w: f32, component: usize, hit: &Hit);
+}
+
+impl<F: FnMut(f32, usize, &Hit)> Visit for F {
+    #[inline(always)]
+    fn hit(&mut self, w: f32, component: usize, hit: &Hit) {
+        self(w, component, hit)
+    }
+}
+
+/// A composite's per-hit work: the hit added to the record (eq. surface-record), then handed to
+/// `visit`.
+struct Compositing<'p, 's, V> {
+    placed: &'p Placed<'s>,
+    o: Vec3,
+    d: Vec3,
+    record: SurfaceRecord,
+    visit: V,
+}
+
+impl<V: FnMut(WeightedHit)> Visit for Compositing<'_, '_, V> {
+    #[inline(always)]
+    fn hit(&mut self, w: f32, c: usize, h: &Hit) {
+        let blas = &self.placed.scene.blas[c];
+        let slot = h.slot as usize;
+        let surfel = &blas.hit[slot];
+        let mut n = self.placed.instances[c].rotation * Vec3::from_array(surfel.n);
+        if n.dot(self.d) > 0.0 {
+            n = -n;
+        }
+        let x = self.o + h.t * self.d;
+        self.record
+            .add(w, h.t, x.to_array(), n.to_array(), &blas.material[slot]);
+        (self.visit)(WeightedHit {
+            component: c as u32,
+            index: surfel.index,
+            w,
+        });
     }
 }
