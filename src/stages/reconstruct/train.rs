@@ -649,12 +649,14 @@ impl Trainer {
         let geometric = (moves_poses && s.pose_gradient == PoseGradient::Geometry)
             .then(|| fwd.backward(&grad).transforms);
         grad.color = color_grad;
-        let grads = fwd.backward(&grad);
+        let mut grads = fwd.backward(&grad);
         drop(fwd);
 
-        // Parameter updates, component by component.
+        // Parameter updates, component by component. The gradients are handed to Adam as flat
+        // views of the backward pass's own buffers (`as_flattened`), not copied: on a room of
+        // ~1 M surfels each copy was tens to hundreds of MB alive at the step's peak.
         for (c, comp) in self.model.components.iter_mut().enumerate() {
-            let sg = &grads.surfels[c];
+            let sg = &mut grads.surfels[c];
             let act = &surfels[c];
             let len = comp.len();
             if len == 0 {
@@ -663,8 +665,6 @@ impl Trainer {
             // eq. scale-regularization over every surfel of the scene, per component.
             let scale_reg = optim::scale_regularization(&act.scale, s.s_max);
             losses.scale += s.lambda_scale * scale_reg.value * len as f32;
-            let mut g_pos: Vec<f32> = sg.position.iter().flatten().copied().collect();
-            let g_rot: Vec<f32> = sg.rotation.iter().flatten().copied().collect();
             let g_scale: Vec<f32> = (0..len)
                 .flat_map(|i| {
                     [0, 1].map(|k| {
@@ -678,15 +678,15 @@ impl Trainer {
             let g_opacity: Vec<f32> = (0..len)
                 .map(|i| splat::logit_grad(act.opacity[i], sg.opacity[i]))
                 .collect();
-            let g_sh: Vec<f32> = sg.sh.iter().flatten().copied().collect();
             // Densification statistics: ‖∂L/∂μ‖ of the surfels this view touched.
-            for i in 0..len {
-                let gp = Vec3::new(g_pos[3 * i], g_pos[3 * i + 1], g_pos[3 * i + 2]).length();
+            for (i, g) in sg.position.iter().enumerate() {
+                let gp = Vec3::from_array(*g).length();
                 if gp > 0.0 {
                     self.grad_accum[c][i] += gp;
                     self.grad_count[c][i] += 1;
                 }
             }
+            let g_pos = sg.position.as_flattened_mut();
             if !g_pos.iter().all(|x| x.is_finite()) {
                 g_pos.iter_mut().for_each(|x| {
                     if !x.is_finite() {
@@ -694,14 +694,19 @@ impl Trainer {
                     }
                 });
             }
+            let (g_pos, g_rot, g_sh) = (
+                sg.position.as_flattened(),
+                sg.rotation.as_flattened(),
+                sg.sh.as_flattened(),
+            );
             // The SH gradient goes to the shared part and to this view's state's residual.
-            let groups = [
-                (0, &g_pos),
-                (1, &g_rot),
+            let groups: [(usize, &[f32]); 6] = [
+                (0, g_pos),
+                (1, g_rot),
                 (2, &g_scale),
                 (3, &g_opacity),
-                (GROUPS.len(), &g_sh),
-                (GROUPS.len() + 1 + j, &g_sh),
+                (GROUPS.len(), g_sh),
+                (GROUPS.len() + 1 + j, g_sh),
             ];
             for (g, gr) in groups {
                 let gi = self
