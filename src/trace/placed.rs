@@ -117,7 +117,7 @@ pub struct Placed<'a> {
     /// camera ray rather than 60.5 and 33.1, 20 shifts per ray rather than 107.
     order: Vec<usize>,
     /// What the traversals run on: [`Isa::best`] unless chosen ([`Placed::with_isa`]).
-    pub(super) isa: Isa,
+    isa: Isa,
 }
 
 impl<'a> Placed<'a> {
@@ -311,10 +311,10 @@ impl<'a> Placed<'a> {
         self.walk(o, d, t_min, t_max, &mut (), visit)
     }
 
-    /// The traversal behind [`Placed::composite`] and its backward pass: calls `visit(w,
-    /// component, hit)` for every hit that is composited, front to back, with its weight
-    /// `w = T α` (eq. surface-record). One copy, so the backward pass sees exactly the forward's
-    /// hits in the forward's order.
+    /// The traversal behind [`Placed::composite`] and its backward pass: calls
+    /// `visit.hit(w, component, hit)` ([`Visit`]) for every hit that is composited, front to
+    /// back, with its weight `w = T α` (eq. surface-record). One copy, so the backward pass
+    /// sees exactly the forward's hits in the forward's order.
     #[inline(always)]
     pub(super) fn walk(
         &self,
