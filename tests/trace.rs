@@ -637,3 +637,63 @@ fn the_avx2_traversals_match_the_baseline_bit_for_bit() {
         assert_eq!(format!("{ga:?}"), format!("{gb:?}"));
     }
 }
+
+/// Stage 2's per-step scenes are built with obvhs's very fast build
+/// ([`TraceScene::from_components_for_few_rays`]): a different tree, so the same hits are found
+/// in another order. What a ray composites must not depend on it: the same hits (component,
+/// surfel) in the same order, with weights and record sums equal up to rounding. Tolerance:
+/// the batch's running transmittance is a product of up to a few hundred f32 factors taken in
+/// discovery order, each rounding by ≤ 2⁻²⁴ relative, so ~1e-5 of the weight (here 1e-4 of
+/// the largest weight or sum, absolute, for the near-zero ones).
+#[test]
+fn the_few_rays_build_composites_what_the_medium_build_does() {
+    for (seed, alpha, n) in [(21u64, (0.3, 1.0), 1500), (22, (0.004, 0.04), 3000)] {
+        let (scene, transforms) = random_scene(seed, alpha, n);
+        let parts: Vec<&Surfels> = scene.components.iter().map(|c| &c.surfels).collect();
+        let medium = TraceScene::from_components(&parts);
+        let fast = TraceScene::from_components_for_few_rays(&parts);
+        let (pm, pf) = (medium.place(&transforms), fast.place(&transforms));
+        let mut rng = SplitMix(seed + 500);
+        let mut total_hits = 0;
+        for r in 0..300 {
+            let (o, d) = random_ray(&mut rng);
+            let (mut hm, mut hf) = (Vec::new(), Vec::new());
+            let a = pm.composite_hits(o, d, 0.0, f32::INFINITY, &mut hm);
+            let b = pf.composite_hits(o, d, 0.0, f32::INFINITY, &mut hf);
+            let ids = |h: &[lightfuse::trace::WeightedHit]| -> Vec<(u32, u32)> {
+                h.iter().map(|h| (h.component, h.index)).collect()
+            };
+            assert_eq!(ids(&hm), ids(&hf), "ray {r}: other hits");
+            total_hits += hm.len();
+            for (x, y) in hm.iter().zip(&hf) {
+                assert!(
+                    (x.w - y.w).abs() <= 1e-5 * x.w.max(1e-1),
+                    "ray {r}: {x:?} vs {y:?}"
+                );
+            }
+            assert_eq!(a.hits, b.hits);
+            let sums = |s: &lightfuse::trace::SurfaceRecord| {
+                let mut v = vec![s.depth, s.metallic, s.roughness, s.alpha];
+                v.extend(s.position);
+                v.extend(s.normal);
+                v.extend(s.base_color);
+                v
+            };
+            for (x, y) in sums(&a).iter().zip(sums(&b)) {
+                assert!(
+                    (x - y).abs() <= 1e-4 * x.abs().max(1.0),
+                    "ray {r}: {a:?} vs {b:?}"
+                );
+            }
+            let (ta, tb) = (
+                pm.transmittance(o, d, 0.0, f32::INFINITY),
+                pf.transmittance(o, d, 0.0, f32::INFINITY),
+            );
+            assert!((ta - tb).abs() <= 1e-5, "ray {r}: {ta} vs {tb}");
+        }
+        assert!(
+            total_hits > 300,
+            "the rays must hit something: {total_hits}"
+        );
+    }
+}

@@ -26,7 +26,7 @@ pub(crate) struct Blas {
 }
 
 impl Blas {
-    fn build(s: &Surfels) -> Blas {
+    fn build(s: &Surfels, params: BvhBuildParams) -> Blas {
         let n = s.len();
         assert!(
             n < u32::MAX as usize,
@@ -58,13 +58,7 @@ impl Blas {
                 hi: [0.0; 3],
             };
         }
-        // Medium quality: build time stays within a few times a fast build, and traversal is
-        // what a path tracer pays for, millions of times per build.
-        let bvh = build_cwbvh(
-            &bounds,
-            BvhBuildParams::medium_build(),
-            &mut Duration::default(),
-        );
+        let bvh = build_cwbvh(&bounds, params, &mut Duration::default());
         let index = bvh.primitive_indices.clone();
         let hit = index
             .par_iter()
@@ -110,8 +104,26 @@ impl TraceScene {
 
     /// Builds a BVH for each group of surfels (component order = instance order in `place`).
     pub fn from_components(components: &[&Surfels]) -> TraceScene {
+        // obvhs's medium quality: build time stays within a few times a fast build, and
+        // traversal is what a path tracer pays for, millions of times per build.
+        TraceScene::with_params(components, BvhBuildParams::medium_build())
+    }
+
+    /// [`TraceScene::from_components`] with BVHs built faster and traversed slower (obvhs's
+    /// very fast build: the shortest PLOC search, little reinsertion): for a scene rebuilt at
+    /// every optimisation step and traced by a few thousand rays, as in stage 2's loop. There,
+    /// on the kitchen preset (0.70 M surfels, 4,096 rays a step), 60 steps took 23-25 s against
+    /// 31-32 s with the medium build (alternating, idle machine), to the same held-out figures
+    /// (`lightfuse refine data/kitchen W --iterations 60`). The hits a ray composites are the
+    /// same whatever the tree: only the order they are found in changes, which moves the
+    /// batch's running transmittance by rounding alone (`tests/trace.rs`).
+    pub fn from_components_for_few_rays(components: &[&Surfels]) -> TraceScene {
+        TraceScene::with_params(components, BvhBuildParams::very_fast_build())
+    }
+
+    fn with_params(components: &[&Surfels], params: BvhBuildParams) -> TraceScene {
         TraceScene {
-            blas: components.iter().map(|s| Blas::build(s)).collect(),
+            blas: components.iter().map(|s| Blas::build(s, params)).collect(),
         }
     }
 

@@ -309,7 +309,9 @@ impl Refiner {
         let sw = s.switches;
         let surfels = self.surfels();
         let refs: Vec<&Surfels> = surfels.iter().collect();
-        let scene = TraceScene::from_components(&refs);
+        // Rebuilt every step for a few thousand rays: the build, not the tracing, is the step's
+        // cost, so the faster build.
+        let scene = TraceScene::from_components_for_few_rays(&refs);
         let patches = self.draw_patches(states);
         let side = s.patch.min(
             states
