@@ -643,8 +643,9 @@ fn the_avx2_traversals_match_the_baseline_bit_for_bit() {
 /// in another order. What a ray composites must not depend on it: the same hits (component,
 /// surfel) in the same order, with weights and record sums equal up to rounding. Tolerance:
 /// the batch's running transmittance is a product of up to a few hundred f32 factors taken in
-/// discovery order, each rounding by ≤ 2⁻²⁴ relative, so ~1e-5 of the weight (here 1e-4 of
-/// the largest weight or sum, absolute, for the near-zero ones).
+/// discovery order, each rounding by ≤ 2⁻²⁴ relative, so a weight may move by ~1e-5 of itself
+/// (absolute 1e-6 below w = 0.1, where relative error means little); the record's sums add up
+/// to a few hundred such weights, so 1e-4 of the sum (absolute below 1); transmittance 1e-5.
 #[test]
 fn the_few_rays_build_composites_what_the_medium_build_does() {
     for (seed, alpha, n) in [(21u64, (0.3, 1.0), 1500), (22, (0.004, 0.04), 3000)] {

@@ -686,13 +686,10 @@ impl Trainer {
                     self.grad_count[c][i] += 1;
                 }
             }
-            let g_pos = sg.position.as_flattened_mut();
-            if !g_pos.iter().all(|x| x.is_finite()) {
-                g_pos.iter_mut().for_each(|x| {
-                    if !x.is_finite() {
-                        *x = 0.0
-                    }
-                });
+            for x in sg.position.as_flattened_mut() {
+                if !x.is_finite() {
+                    *x = 0.0;
+                }
             }
             let (g_pos, g_rot, g_sh) = (
                 sg.position.as_flattened(),
