@@ -320,31 +320,8 @@ fn primary_cache_holds_the_traced_records() {
     let t = truth();
     let parts: Vec<&Surfels> = t.scene.components.iter().map(|c| &c.surfels).collect();
     let trace = TraceScene::from_components(&parts);
-    let cams = [
-        camera(Vec3::new(0.0, 0.2, 2.4), 12, 10, 12.0),
-        oriented(camera(Vec3::new(0.5, 0.3, 2.0), 12, 10, 12.0), 10.0, 5.0),
-    ];
-    let views: Vec<Observation> = cams
-        .iter()
-        .enumerate()
-        .map(|(v, &camera)| Observation {
-            state: 0,
-            view: v,
-            camera,
-            rgb: vec![[0.0; 3]; 120],
-            depth: vec![0.0; 120],
-            normal: vec![[0.0; 3]; 120],
-            mask: vec![0; 120],
-        })
-        .collect();
-    // State 0 sees view 0, state 1 (the sphere moved) view 1: images 0 and 1.
-    let states: Vec<TrainState> = (0..2)
-        .map(|k| TrainState {
-            views: vec![&views[k]],
-            transforms: t.scene.states[k].transforms.clone(),
-            eps: self_hit_epsilon(&t.scene, &t.scene.states[k]),
-        })
-        .collect();
+    let views = blank_views();
+    let states = one_view_per_state(&t, &views);
     let (jitters, seed) = (3, 11);
     let cache = PrimaryCache::build(&trace, &states, jitters, seed);
     assert_eq!(cache.len().0, 2 * 120 * jitters as usize);
@@ -368,4 +345,125 @@ fn primary_cache_holds_the_traced_records() {
         }
     }
     assert!(hit > 200, "the views must see the objects ({hit})");
+}
+
+/// Two 12×10 views with blank captures (for tests of the passes, not of the fit).
+fn blank_views() -> Vec<Observation> {
+    let cams = [
+        camera(Vec3::new(0.0, 0.2, 2.4), 12, 10, 12.0),
+        oriented(camera(Vec3::new(0.5, 0.3, 2.0), 12, 10, 12.0), 10.0, 5.0),
+    ];
+    cams.iter()
+        .enumerate()
+        .map(|(v, &camera)| Observation {
+            state: 0,
+            view: v,
+            camera,
+            rgb: vec![[0.0; 3]; 120],
+            depth: vec![0.0; 120],
+            normal: vec![[0.0; 3]; 120],
+            mask: vec![0; 120],
+        })
+        .collect()
+}
+
+/// State 0 sees view 0, state 1 (the sphere moved) view 1: images 0 and 1 of a cache.
+fn one_view_per_state<'a>(t: &Truth, views: &'a [Observation]) -> Vec<TrainState<'a>> {
+    (0..2)
+        .map(|k| TrainState {
+            views: vec![&views[k]],
+            transforms: t.scene.states[k].transforms.clone(),
+            eps: self_hit_epsilon(&t.scene, &t.scene.states[k]),
+        })
+        .collect()
+}
+
+/// [`Passes::adjoint`] scatters each continuation's gradient through the hits its replayed walk
+/// composited; the reference traces every continuation again
+/// ([`lightfuse::trace::Placed::material_backward`]) after the walk
+/// ([`Estimator::replay_from`], [`lightfuse::shade::replay::PathReplay::record_grads`]). Both
+/// see the same hits and weights (one composite, two visitors) and, with fewer pixels than the
+/// pass's block, add in the same order (texels and primary records in pixel order, then the
+/// continuations in pixel order), so they agree bit for bit: any difference is a lost, doubled
+/// or misattributed hit. Run with and without materials, on both images (the sphere moved),
+/// with pixels repeated as training draws them.
+#[test]
+fn the_adjoint_pass_scatters_what_tracing_the_continuations_again_does() {
+    use lightfuse::shade::Sampler;
+    use lightfuse::stages::invert::cache::PrimaryCache;
+    use lightfuse::stages::invert::train::{Adjoint, Passes};
+    use lightfuse::trace::{scatter_material_grad, MaterialGrads};
+    let t = truth();
+    let parts: Vec<&Surfels> = t.scene.components.iter().map(|c| &c.surfels).collect();
+    let trace = TraceScene::from_components(&parts);
+    let views = blank_views();
+    let states = one_view_per_state(&t, &views);
+    let cache = PrimaryCache::build(&trace, &states, 2, 5);
+    let (spp, seed_grad) = (3, 77);
+    let pixels: Vec<u32> = (0..300u32).map(|i| (i * 37 + i / 7) % 120).collect();
+    let ybar: Vec<[f32; 3]> = (0..pixels.len())
+        .map(|i| {
+            let s = |k: usize| if (i * 5 + k * 3) % 7 < 3 { -1e-3 } else { 2e-3 };
+            [s(0), s(1), s(2)]
+        })
+        .collect();
+    for (image, st) in states.iter().enumerate() {
+        let placed = trace.place(&st.transforms);
+        let map = EnvMap::new(&t.envs[image], 0.0);
+        let est = Estimator::new(&placed, &map, st.eps);
+        let passes = Passes {
+            estimator: &est,
+            env: &map,
+            cache: &cache,
+            image,
+            components: &parts,
+            spp,
+        };
+        // The reference.
+        let mut d_env = vec![[0.0f32; 3]; map.width() * map.height()];
+        let mut d_mat: Vec<MaterialGrads> = parts
+            .iter()
+            .map(|s| MaterialGrads::zeros(s.len()))
+            .collect();
+        let (mut rays, mut grads) = (Vec::new(), Vec::new());
+        for (&p, &yb) in pixels.iter().zip(&ybar) {
+            let sampler = Sampler::new(p, seed_grad);
+            for i in 0..spp {
+                let e = cache.entry(image, p, i);
+                let (ray, rec) = cache.record(e, &parts);
+                let path = est.replay_from(ray, rec, &sampler, i);
+                let mg = path.adjoint(&map, yb, |k, g| {
+                    for c in 0..3 {
+                        d_env[k][c] += g[c];
+                    }
+                });
+                let [primary, secondary] = path.record_grads(&mg);
+                if let Some((_, g)) = primary {
+                    scatter_material_grad(cache.hits(e), &g, &mut d_mat);
+                }
+                if let Some((r, g)) = secondary {
+                    rays.push(r);
+                    grads.push(g);
+                }
+            }
+        }
+        placed.material_backward(&rays, &grads, &mut d_mat);
+        assert!(
+            rays.len() > 20,
+            "image {image}: the continuations must meet the scene ({} do)",
+            rays.len()
+        );
+        let Adjoint {
+            d_env: got_env,
+            d_mat: got_mat,
+        } = passes.adjoint(&pixels, &ybar, seed_grad, true);
+        assert_eq!(got_env, d_env, "image {image}: texels");
+        assert_eq!(got_mat, d_mat, "image {image}: materials");
+        let lighting = passes.adjoint(&pixels, &ybar, seed_grad, false);
+        assert_eq!(
+            lighting.d_env, d_env,
+            "image {image}: texels, lighting only"
+        );
+        assert!(lighting.d_mat.is_empty());
+    }
 }

@@ -44,7 +44,7 @@ use super::envmap::EnvMap;
 use super::replay::{Bounce, PathReplay, Term};
 use super::sobol::Sampler;
 use crate::scene::{Camera, Scene, State};
-use crate::trace::{Placed, SurfaceRecord, TraceRay};
+use crate::trace::{Placed, SurfaceRecord, TraceRay, WeightedHit};
 use glam::Vec3;
 
 /// Sobol dimensions of one path sample. Fixed, so a path replays from (pixel, sample, seed).
@@ -138,6 +138,25 @@ pub struct Estimator<'a> {
     /// Offset of secondary-ray origins along the normal, and their `t_min` (world units).
     pub eps: f32,
     pub strategy: Strategy,
+}
+
+/// Sample `index` of `sampler`: the Sobol dimensions one path sample draws ([`dim`]).
+#[derive(Clone, Copy)]
+struct Draw<'s> {
+    sampler: &'s Sampler,
+    index: u32,
+}
+
+impl Draw<'_> {
+    #[inline]
+    fn get(&self, d: u32) -> f32 {
+        self.sampler.get(self.index, d)
+    }
+
+    #[inline]
+    fn get_2d(&self, d: u32) -> [f32; 2] {
+        self.sampler.get_2d(self.index, d)
+    }
 }
 
 /// Power heuristic, β = 2 (Veach 1995), for a sample of density `a` against strategy `b`.
@@ -250,7 +269,35 @@ impl<'a> Estimator<'a> {
         sampler: &Sampler,
         index: u32,
     ) -> PathReplay {
+        self.walk(camera, record, sampler, index, None)
+    }
+
+    /// [`Estimator::replay_from`], also appending the continuation record's composited hits
+    /// (surfel and weight w_j, front to back; none when no continuation was traced) to `hits`:
+    /// what the secondary gradient of [`PathReplay::record_grads`] is scattered through
+    /// ([`crate::trace::scatter_material_grad`]) without tracing the continuation again. The
+    /// walk is the same (the same composite, only its visitor differs).
+    pub fn replay_from_hits(
+        &self,
+        camera: TraceRay,
+        record: SurfaceRecord,
+        sampler: &Sampler,
+        index: u32,
+        hits: &mut Vec<WeightedHit>,
+    ) -> PathReplay {
+        self.walk(camera, record, sampler, index, Some(hits))
+    }
+
+    fn walk(
+        &self,
+        camera: TraceRay,
+        record: SurfaceRecord,
+        sampler: &Sampler,
+        index: u32,
+        hits: Option<&mut Vec<WeightedHit>>,
+    ) -> PathReplay {
         let mut p = PathReplay::new(camera, record);
+        let draw = Draw { sampler, index };
         let d = Vec3::from_array(camera.dir);
         let a = if record.hits == 0 {
             0.0
@@ -269,15 +316,23 @@ impl<'a> Estimator<'a> {
             if let Some(s) = Shading::of(&record) {
                 p.materials[0] = s.material;
                 match self.strategy {
-                    Strategy::Full => self.shade_primary(&s, -d, a, sampler, index, &mut p),
-                    Strategy::Naive => self.shade_naive(&s, -d, a, sampler, index, &mut p),
-                    Strategy::Unshadowed => {
-                        self.shade_unshadowed(&s, -d, a, sampler, index, &mut p)
-                    }
+                    Strategy::Full => self.shade_primary(&s, -d, a, draw, &mut p, hits),
+                    Strategy::Naive => self.shade_naive(&s, -d, a, draw, &mut p, hits),
+                    Strategy::Unshadowed => self.shade_unshadowed(&s, -d, a, draw, &mut p),
                 }
             }
         }
         p
+    }
+
+    /// The continuation's record, its hits appended to `hits` when asked for.
+    #[inline]
+    fn continuation(&self, ray: &TraceRay, hits: Option<&mut Vec<WeightedHit>>) -> SurfaceRecord {
+        let (o, d) = (ray.origin, ray.dir);
+        match hits {
+            Some(h) => self.scene.composite_hits(o, d, ray.t_min, ray.t_max, h),
+            None => self.scene.composite(o, d, ray.t_min, ray.t_max),
+        }
     }
 
     /// Visibility of the environment from `s` along `wi`: the transmittance of the offset ray.
@@ -299,18 +354,13 @@ impl<'a> Estimator<'a> {
         s: &Shading,
         wo: Vec3,
         a: f32,
-        sampler: &Sampler,
-        index: u32,
+        draw: Draw,
         p: &mut PathReplay,
+        hits: Option<&mut Vec<WeightedHit>>,
     ) {
         // (a)
-        if let Some((b, scale)) = self.env_nee(
-            s,
-            wo,
-            sampler.get_2d(index, dim::ENV_NEE),
-            true,
-            &mut p.rays,
-        ) {
+        if let Some((b, scale)) = self.env_nee(s, wo, draw.get_2d(dim::ENV_NEE), true, &mut p.rays)
+        {
             p.push(Term {
                 scale: a * scale,
                 primary: Some(b),
@@ -319,8 +369,8 @@ impl<'a> Estimator<'a> {
             });
         }
         // (b)
-        let u_lobe = sampler.get(index, dim::LOBE);
-        let u_dir = sampler.get_2d(index, dim::BSDF);
+        let u_lobe = draw.get(dim::LOBE);
+        let u_dir = draw.get_2d(dim::BSDF);
         let Some(bs) = brdf::sample(s.n, wo, &s.material, u_dir, u_lobe) else {
             return;
         };
@@ -332,9 +382,7 @@ impl<'a> Estimator<'a> {
             t_min: self.eps,
             t_max: f32::INFINITY,
         };
-        let rec2 = self
-            .scene
-            .composite(ray.origin, ray.dir, ray.t_min, ray.t_max);
+        let rec2 = self.continuation(&ray, hits);
         p.continuation = Some((ray, rec2));
         let first = Bounce {
             n: s.n,
@@ -367,7 +415,7 @@ impl<'a> Estimator<'a> {
             let n = dim::SECONDARY_ENV.len() as f32;
             for d in dim::SECONDARY_ENV {
                 if let Some((b2, scale)) =
-                    self.env_nee(&s2, -bs.wi, sampler.get_2d(index, d), false, &mut p.rays)
+                    self.env_nee(&s2, -bs.wi, draw.get_2d(d), false, &mut p.rays)
                 {
                     p.push(Term {
                         scale: a * a2 / bs.pdf * scale / n,
@@ -382,16 +430,8 @@ impl<'a> Estimator<'a> {
 
     /// [`Strategy::Unshadowed`]'s terms: [`Estimator::shade_primary`]'s next-event sample and
     /// escaped continuation with visibility 1 and nothing traced.
-    fn shade_unshadowed(
-        &self,
-        s: &Shading,
-        wo: Vec3,
-        a: f32,
-        sampler: &Sampler,
-        index: u32,
-        p: &mut PathReplay,
-    ) {
-        let es = self.env.sample(sampler.get_2d(index, dim::ENV_NEE));
+    fn shade_unshadowed(&self, s: &Shading, wo: Vec3, a: f32, draw: Draw, p: &mut PathReplay) {
+        let es = self.env.sample(draw.get_2d(dim::ENV_NEE));
         if es.pdf > 0.0 {
             let f = brdf::eval_f_cos(s.n, wo, es.dir, &s.material);
             if f.iter().any(|&v| v > 0.0) {
@@ -410,8 +450,8 @@ impl<'a> Estimator<'a> {
                 });
             }
         }
-        let u_lobe = sampler.get(index, dim::LOBE);
-        let u_dir = sampler.get_2d(index, dim::BSDF);
+        let u_lobe = draw.get(dim::LOBE);
+        let u_dir = draw.get_2d(dim::BSDF);
         if let Some(bs) = brdf::sample(s.n, wo, &s.material, u_dir, u_lobe) {
             let w = power_heuristic(bs.pdf, self.env.pdf(bs.wi));
             p.push(Term {
@@ -436,11 +476,11 @@ impl<'a> Estimator<'a> {
         s: &Shading,
         wo: Vec3,
         a: f32,
-        sampler: &Sampler,
-        index: u32,
+        draw: Draw,
         p: &mut PathReplay,
+        hits: Option<&mut Vec<WeightedHit>>,
     ) {
-        let Some((wi, pdf)) = brdf::sample_cosine(s.n, sampler.get_2d(index, dim::BSDF)) else {
+        let Some((wi, pdf)) = brdf::sample_cosine(s.n, draw.get_2d(dim::BSDF)) else {
             return;
         };
         let o = s.x + self.eps * s.n;
@@ -451,9 +491,7 @@ impl<'a> Estimator<'a> {
             t_min: self.eps,
             t_max: f32::INFINITY,
         };
-        let rec2 = self
-            .scene
-            .composite(ray.origin, ray.dir, ray.t_min, ray.t_max);
+        let rec2 = self.continuation(&ray, hits);
         p.continuation = Some((ray, rec2));
         let first = Bounce {
             n: s.n,
@@ -479,7 +517,7 @@ impl<'a> Estimator<'a> {
             return;
         };
         p.materials[1] = s2.material;
-        let u = sampler.get_2d(index, dim::SECONDARY_ENV[0]);
+        let u = draw.get_2d(dim::SECONDARY_ENV[0]);
         let Some((wi2, pdf2)) = brdf::sample_cosine(s2.n, u) else {
             return;
         };

@@ -14,10 +14,10 @@
 //! gradient sign(L_p − I_p)/(3N) is sent back by *replaying* samples (no tape: a sample is
 //! walked again, [`crate::shade::estimator::Estimator::replay_from`]) and taking their adjoint:
 //! into E_k's texels directly, into the records' mean materials and, through the compositing
-//! weights w_j, into each hit surfel's material (the primary record's kept hits,
-//! [`crate::trace::scatter_material_grad`]; the continuation's traced again,
-//! [`crate::trace::Placed::material_backward`]). The replay draws an independent sample set
-//! (Mitsuba's `seed_grad`), so the sign is not correlated with the samples it weights.
+//! weights w_j, into each hit surfel's material (the primary record's kept hits, and the hits
+//! the replayed walk composited along the continuation, [`crate::trace::scatter_material_grad`]):
+//! [`Passes`]. The replay draws an independent sample set (Mitsuba's `seed_grad`), so the sign
+//! is not correlated with the samples it weights.
 //!
 //! **Parameters** ([`Inverter`]): per surfel the logits of base colour, metallic and roughness
 //! (activated by a sigmoid, so they stay in (0, 1)); per training state ρ = ln E per texel and
@@ -39,7 +39,10 @@ use crate::scene::{Environment, Rigid, Surfels};
 use crate::shade::envmap::{direction_to_uv, EnvMap};
 use crate::shade::estimator::{Estimator, Strategy};
 use crate::shade::Sampler;
-use crate::trace::{scatter_material_grad, MaterialGrads, RecordGrad, TraceRay, TraceScene};
+use crate::trace::{
+    scatter_material_grad, MaterialGrads, RecordGrad, SurfaceRecord, TraceRay, TraceScene,
+    WeightedHit,
+};
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -325,6 +328,153 @@ const JITTER_SEED: u32 = 0x5eed_0f1e;
 /// does not depend on the thread count.
 const PIXEL_CHUNK: usize = 32;
 
+/// Pixels per block of the adjoint: each block's per-sample outputs (texel gradients, hits)
+/// are summed into the dense gradients before the next starts, so the pass's memory does not
+/// grow with pixels × spp (at the paper's 16,384 pixels × 32 spp it would be ~0.4 GB).
+const PIXEL_BLOCK: usize = 1024;
+
+/// Stage 3's two passes over one training image's pixels ([`Inverter::step`] runs them, and
+/// so does the `path_replay` benchmark): every path sample starts at its primary record from
+/// `cache`, with the current materials of `components`, and is walked by `estimator`.
+pub struct Passes<'a> {
+    pub estimator: &'a Estimator<'a>,
+    /// The environment the estimator shades with (its texels receive the adjoint).
+    pub env: &'a EnvMap,
+    pub cache: &'a PrimaryCache,
+    /// The image's index in the cache.
+    pub image: usize,
+    pub components: &'a [&'a Surfels],
+    pub spp: u32,
+}
+
+/// What [`Passes::adjoint`] sends back: dL/dE per texel (`y · width + x`), and dL/d(each
+/// surfel's material) per component (empty when materials were not asked for).
+pub struct Adjoint {
+    pub d_env: Vec<[f32; 3]>,
+    pub d_mat: Vec<MaterialGrads>,
+}
+
+impl Passes<'_> {
+    /// Sample `i` of pixel `p`: its camera ray and primary record, with the current materials.
+    fn primary(&self, p: u32, i: u32) -> (TraceRay, SurfaceRecord) {
+        let e = self.cache.entry(self.image, p, i);
+        self.cache.record(e, self.components)
+    }
+
+    /// Each pixel's estimate: the mean of `spp` path samples of the Sobol stream `seed`.
+    pub fn forward(&self, pixels: &[u32], seed: u32) -> Vec<[f32; 3]> {
+        pixels
+            .par_iter()
+            .with_min_len(8)
+            .map(|&p| {
+                let sampler = Sampler::new(p, seed);
+                let mut acc = [0.0f32; 3];
+                for i in 0..self.spp {
+                    let (ray, rec) = self.primary(p, i);
+                    let path = self.estimator.replay_from(ray, rec, &sampler, i);
+                    let r = path.radiance(self.env);
+                    for c in 0..3 {
+                        acc[c] += r[c];
+                    }
+                }
+                acc.map(|a| a / self.spp as f32)
+            })
+            .collect()
+    }
+
+    /// Path replay: every sample of the Sobol stream `seed_grad` walked again (nothing was
+    /// kept from the forward pass but the cached primary records) and its adjoint taken for
+    /// dL/d(its radiance) = `ybar` of its pixel (already divided by spp): into the texels it
+    /// read and, with `materials`, through the records' mean materials into every hit surfel's
+    /// material: the primary record's through its cached hits, the continuation's through the
+    /// hits its walk composited ([`Estimator::replay_from_hits`]; tracing the continuation
+    /// again, as [`crate::trace::Placed::material_backward`] would, cost ~10 % of an
+    /// iteration). Deterministic for any thread count: work items of [`PIXEL_CHUNK`] pixels,
+    /// summed in pixel order, within a block of [`PIXEL_BLOCK`] primary records first.
+    pub fn adjoint(
+        &self,
+        pixels: &[u32],
+        ybar: &[[f32; 3]],
+        seed_grad: u32,
+        materials: bool,
+    ) -> Adjoint {
+        assert_eq!(pixels.len(), ybar.len(), "one upstream gradient per pixel");
+        #[derive(Default)]
+        struct ChunkOut {
+            texels: Vec<(u32, [f32; 3])>,
+            /// Primary records' gradients, by cache entry.
+            primary: Vec<(usize, RecordGrad)>,
+            /// Continuations' gradients, each with where its hits end in `hits`.
+            secondary: Vec<(usize, RecordGrad)>,
+            hits: Vec<WeightedHit>,
+        }
+        let mut d_env = vec![[0.0f32; 3]; self.env.width() * self.env.height()];
+        let mut d_mat: Vec<MaterialGrads> = if materials {
+            self.components
+                .iter()
+                .map(|s| MaterialGrads::zeros(s.len()))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        for (ps, ys) in pixels.chunks(PIXEL_BLOCK).zip(ybar.chunks(PIXEL_BLOCK)) {
+            let chunks: Vec<ChunkOut> = ps
+                .par_chunks(PIXEL_CHUNK)
+                .zip(ys.par_chunks(PIXEL_CHUNK))
+                .map(|(ps, ys)| {
+                    let mut out = ChunkOut::default();
+                    let mut walked = Vec::new();
+                    for (&p, &yb) in ps.iter().zip(ys) {
+                        let sampler = Sampler::new(p, seed_grad);
+                        for i in 0..self.spp {
+                            let (ray, rec) = self.primary(p, i);
+                            walked.clear();
+                            let est = self.estimator;
+                            let path = if materials {
+                                est.replay_from_hits(ray, rec, &sampler, i, &mut walked)
+                            } else {
+                                est.replay_from(ray, rec, &sampler, i)
+                            };
+                            let mg =
+                                path.adjoint(self.env, yb, |t, g| out.texels.push((t as u32, g)));
+                            if materials {
+                                let [primary, secondary] = path.record_grads(&mg);
+                                if let Some((_, g)) = primary {
+                                    let e = self.cache.entry(self.image, p, i);
+                                    out.primary.push((e, g));
+                                }
+                                if let Some((_, g)) = secondary {
+                                    out.hits.extend_from_slice(&walked);
+                                    out.secondary.push((out.hits.len(), g));
+                                }
+                            }
+                        }
+                    }
+                    out
+                })
+                .collect();
+            for c in &chunks {
+                for &(t, g) in &c.texels {
+                    for ch in 0..3 {
+                        d_env[t as usize][ch] += g[ch];
+                    }
+                }
+                for (e, g) in &c.primary {
+                    scatter_material_grad(self.cache.hits(*e), g, &mut d_mat);
+                }
+            }
+            for c in &chunks {
+                let mut start = 0;
+                for (end, g) in &c.secondary {
+                    scatter_material_grad(&c.hits[start..*end], g, &mut d_mat);
+                    start = *end;
+                }
+            }
+        }
+        Adjoint { d_env, d_mat }
+    }
+}
+
 impl Inverter {
     /// Starts from the settings' initial material on every surfel and the given environments
     /// (one per training state, `env_width × env_height`, e.g. [`initial_environment`]).
@@ -484,27 +634,17 @@ impl Inverter {
         let env = self.environment(k, "");
         let map = EnvMap::new(&env, 0.0);
         let est = Estimator::new(&placed, &map, states[k].eps).with_strategy(s.estimator);
-        let sample = |p: u32, i: u32, sampler: &Sampler| {
-            let (ray, rec) = cache.record(cache.entry(image, p, i), &refs);
-            est.replay_from(ray, rec, sampler, i)
+        let passes = Passes {
+            estimator: &est,
+            env: &map,
+            cache,
+            image,
+            components: &refs,
+            spp,
         };
 
         // Forward: each pixel's estimate.
-        let rendered: Vec<[f32; 3]> = pixels
-            .par_iter()
-            .with_min_len(8)
-            .map(|&p| {
-                let sampler = Sampler::new(p, seed);
-                let mut acc = [0.0f32; 3];
-                for i in 0..spp {
-                    let r = sample(p, i, &sampler).radiance(&map);
-                    for c in 0..3 {
-                        acc[c] += r[c];
-                    }
-                }
-                acc.map(|a| a / spp as f32)
-            })
-            .collect();
+        let rendered = passes.forward(&pixels, seed);
         let n = pixels.len().max(1) as f64;
         let mut l1 = 0.0f64;
         let eps = s.loss.epsilon(pixels.iter().map(|&p| obs.rgb[p as usize]));
@@ -520,73 +660,10 @@ impl Inverter {
             .collect();
         let l1 = (l1 / (3.0 * n)) as f32;
 
-        // Adjoint: replay every sample under the second seed (path replay: nothing was kept
-        // from the forward pass but the cached primary records).
+        // Adjoint: replay every sample under the second seed.
         let materials_on = it >= s.lighting_until;
-        struct ChunkOut {
-            texels: Vec<(u32, [f32; 3])>,
-            /// Primary records' gradients, by cache entry.
-            primary: Vec<(usize, RecordGrad)>,
-            rays: Vec<TraceRay>,
-            grads: Vec<RecordGrad>,
-        }
-        let chunks: Vec<ChunkOut> = pixels
-            .par_chunks(PIXEL_CHUNK)
-            .zip(ybar.par_chunks(PIXEL_CHUNK))
-            .map(|(ps, ys)| {
-                let mut out = ChunkOut {
-                    texels: Vec::new(),
-                    primary: Vec::new(),
-                    rays: Vec::new(),
-                    grads: Vec::new(),
-                };
-                for (&p, &yb) in ps.iter().zip(ys) {
-                    let sampler = Sampler::new(p, seed_grad);
-                    for i in 0..spp {
-                        let path = sample(p, i, &sampler);
-                        let mg = path.adjoint(&map, yb, |t, g| out.texels.push((t as u32, g)));
-                        if materials_on {
-                            let [primary, secondary] = path.record_grads(&mg);
-                            if let Some((_, g)) = primary {
-                                out.primary.push((cache.entry(image, p, i), g));
-                            }
-                            if let Some((ray, g)) = secondary {
-                                out.rays.push(ray);
-                                out.grads.push(g);
-                            }
-                        }
-                    }
-                }
-                out
-            })
-            .collect();
+        let Adjoint { d_env, d_mat } = passes.adjoint(&pixels, &ybar, seed_grad, materials_on);
         let texels = env.pixels.len();
-        let mut d_env = vec![[0.0f32; 3]; texels];
-        let mut rays = Vec::new();
-        let mut grads = Vec::new();
-        let mut d_mat: Vec<MaterialGrads> = if materials_on {
-            surfels
-                .iter()
-                .map(|s| MaterialGrads::zeros(s.len()))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        for c in chunks {
-            for (t, g) in c.texels {
-                for ch in 0..3 {
-                    d_env[t as usize][ch] += g[ch];
-                }
-            }
-            for (e, g) in &c.primary {
-                scatter_material_grad(cache.hits(*e), g, &mut d_mat);
-            }
-            rays.extend(c.rays);
-            grads.extend(c.grads);
-        }
-        if materials_on && !rays.is_empty() {
-            placed.material_backward(&rays, &grads, &mut d_mat);
-        }
         let tv = env_tv(&env.pixels, env.width, env.height);
         // E = exp ρ: dL/dρ = dL/dE · E.
         let d_rho: Vec<f32> = (0..texels)
