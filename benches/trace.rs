@@ -448,7 +448,9 @@ fn path_replay(c: &mut Criterion) {
         transforms: scene.states[0].transforms.clone(),
         eps,
     }];
-    let cache = PrimaryCache::build(&traced, &states, SPP, 0);
+    // One sub-pixel position per pixel, as stage 3 runs by default (`Settings::primary_jitters`):
+    // every sample of a pixel starts at its one record.
+    let cache = PrimaryCache::build(&traced, &states, 1, 0);
     let f = cache.figures();
     eprintln!(
         "path_replay_200k: primary cache of {} entries, {:.1} hits each, {:.1} MB, traced in {:.2} s",

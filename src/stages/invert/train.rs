@@ -355,22 +355,31 @@ pub struct Adjoint {
 }
 
 impl Passes<'_> {
-    /// Sample `i` of pixel `p`: its camera ray and primary record, with the current materials.
-    fn primary(&self, p: u32, i: u32) -> (TraceRay, SurfaceRecord) {
-        let e = self.cache.entry(self.image, p, i);
-        self.cache.record(e, self.components)
+    /// Pixel `p`'s primary records (camera ray and record, with the current materials) into
+    /// `out`: sample i starts at `out[i mod J]` (J = the cache's jitters; [`PrimaryCache::entry`]).
+    /// Each is rebuilt once per pass however many samples start at it: at the default J = 1
+    /// all spp of them, and rebuilding means reading every hit surfel's material.
+    fn primaries(&self, p: u32, out: &mut Vec<(TraceRay, SurfaceRecord)>) {
+        out.clear();
+        let j = self.cache.jitters().min(self.spp).max(1);
+        out.extend((0..j).map(|k| {
+            let e = self.cache.entry(self.image, p, k);
+            self.cache.record(e, self.components)
+        }));
     }
 
     /// Each pixel's estimate: the mean of `spp` path samples of the Sobol stream `seed`.
     pub fn forward(&self, pixels: &[u32], seed: u32) -> Vec<[f32; 3]> {
+        let jitters = self.cache.jitters() as usize;
         pixels
             .par_iter()
             .with_min_len(8)
-            .map(|&p| {
+            .map_init(Vec::new, |records, &p| {
                 let sampler = Sampler::new(p, seed);
+                self.primaries(p, records);
                 let mut acc = [0.0f32; 3];
                 for i in 0..self.spp {
-                    let (ray, rec) = self.primary(p, i);
+                    let (ray, rec) = records[i as usize % jitters];
                     let path = self.estimator.replay_from(ray, rec, &sampler, i);
                     let r = path.radiance(self.env);
                     for c in 0..3 {
@@ -389,8 +398,10 @@ impl Passes<'_> {
     /// material: the primary record's through its cached hits, the continuation's through the
     /// hits its walk composited ([`Estimator::replay_from_hits`]; tracing the continuation
     /// again, as [`crate::trace::Placed::material_backward`] would, cost ~10 % of an
-    /// iteration). Deterministic for any thread count: work items of [`PIXEL_CHUNK`] pixels,
-    /// summed in pixel order, within a block of [`PIXEL_BLOCK`] primary records first.
+    /// iteration). A primary record's gradient is summed over the pixel's samples that start
+    /// at it and scattered once. Deterministic for any thread count: work items of
+    /// [`PIXEL_CHUNK`] pixels, summed in pixel order, within a block of [`PIXEL_BLOCK`] pixels
+    /// the primary records first.
     pub fn adjoint(
         &self,
         pixels: &[u32],
@@ -417,17 +428,22 @@ impl Passes<'_> {
         } else {
             Vec::new()
         };
+        let jitters = self.cache.jitters() as usize;
         for (ps, ys) in pixels.chunks(PIXEL_BLOCK).zip(ybar.chunks(PIXEL_BLOCK)) {
             let chunks: Vec<ChunkOut> = ps
                 .par_chunks(PIXEL_CHUNK)
                 .zip(ys.par_chunks(PIXEL_CHUNK))
                 .map(|(ps, ys)| {
                     let mut out = ChunkOut::default();
-                    let mut walked = Vec::new();
+                    let (mut walked, mut records, mut grads) = (Vec::new(), Vec::new(), Vec::new());
                     for (&p, &yb) in ps.iter().zip(ys) {
                         let sampler = Sampler::new(p, seed_grad);
+                        self.primaries(p, &mut records);
+                        grads.clear();
+                        grads.resize(records.len(), RecordGrad::default());
                         for i in 0..self.spp {
-                            let (ray, rec) = self.primary(p, i);
+                            let k = i as usize % jitters;
+                            let (ray, rec) = records[k];
                             walked.clear();
                             let est = self.estimator;
                             let path = if materials {
@@ -440,13 +456,20 @@ impl Passes<'_> {
                             if materials {
                                 let [primary, secondary] = path.record_grads(&mg);
                                 if let Some((_, g)) = primary {
-                                    let e = self.cache.entry(self.image, p, i);
-                                    out.primary.push((e, g));
+                                    grads[k].add(&g);
                                 }
                                 if let Some((_, g)) = secondary {
                                     out.hits.extend_from_slice(&walked);
                                     out.secondary.push((out.hits.len(), g));
                                 }
+                            }
+                        }
+                        // A record's gradient is linear in its samples': summed, then scattered
+                        // once through its hits.
+                        for (k, g) in grads.iter().enumerate() {
+                            if !g.is_zero() {
+                                let e = self.cache.entry(self.image, p, k as u32);
+                                out.primary.push((e, *g));
                             }
                         }
                     }
