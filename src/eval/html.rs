@@ -57,7 +57,7 @@ pub struct Assets {
 }
 
 /// Keys of a stage log that are not losses.
-const NOT_LOSSES: [&str; 4] = ["iteration", "surfels", "seconds", "spp"];
+const NOT_LOSSES: [&str; 5] = ["iteration", "surfels", "seconds", "training_seconds", "spp"];
 
 /// Reads a stage's `log.jsonl` (one JSON object per line, `iteration` and the losses) into
 /// curves; None when the file does not exist. A line that does not parse is skipped: the last

@@ -79,7 +79,13 @@ pub struct Report {
     pub eval_spp: u32,
     pub eval_stride: u32,
     pub iterations: u32,
+    /// This process's wall time, reading to writing.
     pub seconds: f64,
+    /// Wall time of the training iterations over every run a `--resume` continued (the
+    /// iterations each checkpoint kept; those a killed run had done after its last checkpoint
+    /// are done and counted again). Equals the training share of `seconds` without a resume.
+    #[serde(default)]
+    pub training_seconds: f64,
     pub surfels: usize,
     /// The training pixels' primary records, traced once ([`PrimaryCache`]): its size and
     /// cost (absent when a resumed run had nothing left to train).
@@ -93,10 +99,13 @@ pub struct Report {
     pub materials: Vec<MaterialFigures>,
 }
 
-/// What a resumed run needs: the inverter (parameters, Adam, iteration, generator).
+/// What a resumed run needs: the inverter (parameters, Adam, iteration, generator), and the
+/// training time spent to reach it (for the report of a run resumed over several sittings).
 #[derive(Serialize, Deserialize)]
 struct Checkpoint {
     inverter: Inverter,
+    #[serde(default)]
+    training_seconds: f64,
 }
 
 fn read_resumable(path: &Path, settings: &Settings, surfels: &[Surfels]) -> Result<Checkpoint> {
@@ -295,6 +304,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
             let refs: Vec<&Surfels> = surfels.iter().collect();
             Ok(Checkpoint {
                 inverter: Inverter::new(opts.settings.clone(), &refs, &envs),
+                training_seconds: 0.0,
             })
         },
     )?;
@@ -304,6 +314,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
     let total = opts.settings.iterations;
     let mut bar = Progress::new(opts.quiet, total as u64, "inverting");
     bar.start_at(c.inverter.iteration as u64);
+    let (trained_before, t_train) = (c.training_seconds, Instant::now());
     StageLoop {
         total,
         log_every: LOG_EVERY,
@@ -315,7 +326,11 @@ pub fn invert(opts: &Options) -> Result<Report> {
     .run(
         &mut c,
         |c| c.inverter.iteration,
-        |c, _| Ok(c.inverter.step(&mut trace, &mut surfels, &loop_states)),
+        |c, _| {
+            let l = c.inverter.step(&mut trace, &mut surfels, &loop_states);
+            c.training_seconds = trained_before + t_train.elapsed().as_secs_f64();
+            Ok(l)
+        },
         |c, m| {
             // The samples per pixel the last iteration drew, not their window mean.
             let spp = c
@@ -324,6 +339,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
                 .spp_at(c.inverter.iteration.saturating_sub(1));
             m.insert("spp".into(), spp.into());
             m.insert("seconds".into(), t0.elapsed().as_secs_f64().into());
+            m.insert("training_seconds".into(), c.training_seconds.into());
             let l1 = m.get("l1").and_then(|v| v.as_f64()).unwrap_or(0.0);
             format!("L1 {l1:.4} · {spp} spp")
         },
@@ -362,6 +378,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
         eval_stride: opts.eval_stride,
         iterations: c.inverter.iteration,
         seconds: t0.elapsed().as_secs_f64(),
+        training_seconds: c.training_seconds,
         surfels: out.surfel_count(),
         primary_cache: c.inverter.cache().map(PrimaryCache::figures),
         states: Vec::new(),
