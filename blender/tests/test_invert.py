@@ -34,11 +34,22 @@ def test_invert_writes_the_relightable_scene_and_resumes(tiny_dataset, tmp_path)
     log = [json.loads(line) for line in (work / "invert" / "log.jsonl").read_text().splitlines()]
     assert log[-1]["iteration"] == 6 and {"l1", "tv", "spp"} <= set(log[-1])
 
-    # Resuming continues where the checkpoint stands; other settings are refused.
-    ok("--quiet", "invert", ds, work, "--iterations", "12", "--eval-spp", "1",
-       "--spp-schedule", "max16", "--resume")
+    assert 0 < report["training_seconds"] <= report["seconds"]
+
+    # Resuming continues where the checkpoint stands, its training time carried over (here a
+    # day's, written into the checkpoint, as after a run over several sittings); other
+    # settings are refused.
+    ckpt = work / "invert" / "checkpoint.json"
+    c = json.loads(ckpt.read_text())
+    assert c["training_seconds"] == report["training_seconds"]
+    c["training_seconds"] = 86400.0
+    ckpt.write_text(json.dumps(c))
+    resumed = json.loads(ok("--json", "invert", ds, work, "--iterations", "12", "--eval-spp", "1",
+                            "--spp-schedule", "max16", "--resume"))
+    assert 86400.0 < resumed["training_seconds"] < 86400.0 + resumed["seconds"]
     log = [json.loads(line) for line in (work / "invert" / "log.jsonl").read_text().splitlines()]
     assert [e["iteration"] for e in log] == [6, 10, 12]
+    assert log[0]["training_seconds"] < 86400.0 < log[1]["training_seconds"]
     p = run("invert", ds, work, "--iterations", "20", "--resume")
     assert p.returncode == 2 and "checkpoint.json" in p.stderr and "panicked" not in p.stderr, p.stderr
 
