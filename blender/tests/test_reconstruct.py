@@ -24,6 +24,25 @@ def ok(*args):
     return p.stdout
 
 
+def a_day_of_training(checkpoint, report):
+    """Writes a day's training time into a stage's checkpoint, as after a run over several
+    sittings, once checked that it holds what the report of the run that wrote it says."""
+    c = json.loads(checkpoint.read_text())
+    assert 0 < report["training_seconds"] <= report["seconds"]
+    assert c["training_seconds"] == report["training_seconds"]
+    c["training_seconds"] = 86400.0
+    checkpoint.write_text(json.dumps(c))
+
+
+def assert_a_day_carried_over(resumed, log, resumed_from):
+    """A run resumed after `a_day_of_training`: its report and the log lines it wrote (after
+    iteration `resumed_from`) count the day and this run's training on top of it."""
+    assert 86400.0 < resumed["training_seconds"] < 86400.0 + resumed["seconds"]
+    for line in log:
+        assert (line["training_seconds"] > 86400.0) == (line["iteration"] > resumed_from), line
+    assert log[-1]["training_seconds"] == resumed["training_seconds"]
+
+
 def stages(tiny_dataset, tmp_path, refine=False):
     """A work folder with stage 1 (20 iterations) and, with `refine`, stage 2 (5) on the tiny
     dataset: the starting point of the later stages' tests."""
@@ -86,10 +105,13 @@ def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):
     assert log and log[-1]["iteration"] == 40
     assert (work / "checkpoint.json").is_file()
 
-    # Resuming continues from iteration 40 instead of starting again.
-    ok("--quiet", "reconstruct", ds, "-o", work, "--iterations", "60", "--resume")
+    # Resuming continues from iteration 40 instead of starting again, its training time
+    # carried over.
+    a_day_of_training(work / "checkpoint.json", report)
+    resumed = json.loads(ok("--json", "reconstruct", ds, "-o", work, "--iterations", "60", "--resume"))
     log = [json.loads(line) for line in (work / "log.jsonl").read_text().splitlines()]
     assert [entry["iteration"] for entry in log][-2:] == [50, 60]
+    assert_a_day_carried_over(resumed, log, 40)
 
     out = tmp_path / "baked"
     ok("--quiet", "render", work / "scene.glb", "--state", "state1", "--cameras", ds, "--baked", "--out", out)

@@ -6,7 +6,8 @@ the demo dataset and reported in the issue note; this tiny 32x32 dataset proves 
 `tests/refine.rs` proves the repair.)"""
 import json
 
-from test_reconstruct import ok, renamed_object_dataset, run, stages
+from test_reconstruct import (a_day_of_training, assert_a_day_carried_over, ok, renamed_object_dataset, run,
+                              stages)
 
 FIGURES = {"depth_median_m", "normal_mean_deg", "holes", "false_occlusion", "light_leaks",
            "surface_pixels", "environment_pixels", "blocked_rays", "leaking_rays"}
@@ -31,10 +32,13 @@ def test_refine_writes_the_refined_scene_and_resumes(tiny_dataset, tmp_path):
     assert log[-1]["iteration"] == 20 and {"alpha", "depth", "normal", "depth_normal"} <= set(log[-1])
     assert (work / "refine" / "checkpoint.json").is_file()
 
-    # Resuming continues from iteration 20; other settings than the checkpoint's are refused.
-    ok("--quiet", "refine", ds, work, "--iterations", "30", "--no-scale", "--resume")
+    # Resuming continues from iteration 20, its training time carried over; other settings
+    # than the checkpoint's are refused.
+    a_day_of_training(work / "refine" / "checkpoint.json", report)
+    resumed = json.loads(ok("--json", "refine", ds, work, "--iterations", "30", "--no-scale", "--resume"))
     log = [json.loads(line) for line in (work / "refine" / "log.jsonl").read_text().splitlines()]
     assert [e["iteration"] for e in log] == [20, 25, 30]
+    assert_a_day_carried_over(resumed, log, 20)
     p = run("refine", ds, work, "--iterations", "40", "--resume", "--no-depth")
     assert p.returncode == 2 and "checkpoint.json" in p.stderr and "panicked" not in p.stderr, p.stderr
 

@@ -233,9 +233,24 @@ impl LossWindow {
     }
 }
 
+/// What a stage's loop checkpoints: the trainer at some iteration, and the wall time the
+/// training iterations took to reach it over every run a `--resume` continued. A run of the
+/// paper presets spans sittings, and the time a single process measures is then only its own
+/// share. The iterations a killed run had done after its last checkpoint are done, and counted,
+/// again.
+pub trait Resumable: Serialize {
+    /// Training iterations done.
+    fn iteration(&self) -> u32;
+    /// Training wall time to reach them, seconds (0 in a fresh run's first state).
+    fn training_seconds(&mut self) -> &mut f64;
+}
+
 /// The loop every stage runs (DESIGN §4): steps until `total`, a `log.jsonl` line of the mean
 /// losses every `log_every` iterations (and at the end), the progress bar's status at the same
-/// time, and the checkpoint every `checkpoint_every` iterations (and at the end).
+/// time, and the checkpoint every `checkpoint_every` iterations (and at the end). It keeps the
+/// state's training time ([`Resumable::training_seconds`]): what the state came with plus the
+/// wall time since this loop started, as of the last step (the log lines and checkpoints
+/// written between steps included), and writes it in every log line as `training_seconds`.
 pub struct StageLoop<'a> {
     pub total: u32,
     pub log_every: u32,
@@ -246,27 +261,32 @@ pub struct StageLoop<'a> {
 }
 
 impl StageLoop<'_> {
-    /// Runs `state` (the checkpointed value) from `iteration(state)` to `total`. `step` runs one
+    /// Runs `state` (the checkpointed value) from its iteration to `total`. `step` runs one
     /// iteration and returns its losses (it may print above the bar); `line` adds the stage's
-    /// own fields to each log line (it holds the mean losses under their names, and
-    /// `iteration`) and returns the bar's status.
-    pub fn run<C: Serialize, L: Serialize>(
+    /// own fields to each log line (it holds the mean losses under their names, `iteration`
+    /// and `training_seconds`) and returns the bar's status.
+    pub fn run<C: Resumable, L: Serialize>(
         &mut self,
         state: &mut C,
-        iteration: impl Fn(&C) -> u32,
         mut step: impl FnMut(&mut C, &Progress) -> Result<L>,
         mut line: impl FnMut(&C, &mut serde_json::Map<String, serde_json::Value>) -> String,
     ) -> Result<()> {
         let mut window = LossWindow::default();
-        while iteration(state) < self.total {
+        let (trained_before, started) = (*state.training_seconds(), Instant::now());
+        while state.iteration() < self.total {
             let l = step(state, self.bar)?;
+            *state.training_seconds() = trained_before + started.elapsed().as_secs_f64();
             window.add(&l);
             self.bar.inc(1);
-            let it = iteration(state);
+            let it = state.iteration();
             let last = it >= self.total;
             if it % self.log_every.max(1) == 0 || last {
                 let mut m = window.take();
                 m.insert("iteration".into(), it.into());
+                m.insert(
+                    "training_seconds".into(),
+                    (*state.training_seconds()).into(),
+                );
                 let status = line(state, &mut m);
                 self.log.write(&serde_json::Value::Object(m))?;
                 self.bar.status(&status);
@@ -282,22 +302,22 @@ impl StageLoop<'_> {
 /// Opens a stage's checkpoint for `--resume` when asked and present (`read` validates it
 /// against this run), otherwise starts afresh with `fresh`; says which. Returns the state and
 /// whether it was resumed.
-pub fn resume_or_start<C>(
+pub fn resume_or_start<C: Resumable>(
     checkpoint: &Path,
     resume: bool,
     quiet: bool,
     read: impl FnOnce(&Path) -> Result<C>,
-    iteration: impl Fn(&C) -> u32,
     fresh: impl FnOnce() -> Result<C>,
 ) -> Result<(C, bool)> {
     if resume && checkpoint.is_file() {
-        let c = read(checkpoint)?;
+        let mut c = read(checkpoint)?;
         say(
             quiet,
             &format!(
-                "resuming from {} at iteration {}",
+                "resuming from {} at iteration {} ({:.0} s of training so far)",
                 checkpoint.display(),
-                iteration(&c)
+                c.iteration(),
+                c.training_seconds()
             ),
         );
         Ok((c, true))
@@ -365,7 +385,11 @@ mod tests {
         let (ckpt, log_path) = (dir.path().join("c.json"), dir.path().join("log.jsonl"));
         let mut log = StageLog::create(&log_path, false).expect("created");
         let bar = Progress::new(true, 5, "test");
-        let mut state = 0u32;
+        // As if resumed from a run that had trained for a day.
+        let mut state = Counter {
+            n: 0,
+            training_seconds: 86400.0,
+        };
         StageLoop {
             total: 5,
             log_every: 2,
@@ -376,16 +400,17 @@ mod tests {
         }
         .run(
             &mut state,
-            |s| *s,
             |s, _| {
-                *s += 1;
+                s.n += 1;
+                // Each step takes a measurable time, so the clock must move.
+                std::thread::sleep(std::time::Duration::from_millis(2));
                 Ok(L {
-                    loss: *s as f32,
+                    loss: s.n as f32,
                     label: "x",
                 })
             },
             |s, m| {
-                m.insert("twice".into(), (2 * s).into());
+                m.insert("twice".into(), (2 * s.n).into());
                 String::new()
             },
         )
@@ -408,8 +433,34 @@ mod tests {
             .collect();
         assert_eq!(got, [(2, 1.5, 4), (4, 3.5, 8), (5, 5.0, 10)]);
         assert!(lines.iter().all(|v| v.get("label").is_none()));
-        let back: u32 = read_checkpoint(&ckpt).expect("checkpointed");
-        assert_eq!(back, 5);
+        // The training time goes on from what the state came with (five steps of at least
+        // 2 ms each), grows line by line, and the last checkpoint keeps the last line's.
+        let trained: Vec<f64> = lines
+            .iter()
+            .map(|v| v["training_seconds"].as_f64().unwrap())
+            .collect();
+        assert!(
+            trained[0] >= 86400.0039 && trained[2] >= 86400.0099,
+            "{trained:?}"
+        );
+        assert!(trained.windows(2).all(|w| w[0] < w[1]), "{trained:?}");
+        let back: Counter = read_checkpoint(&ckpt).expect("checkpointed");
+        assert_eq!((back.n, back.training_seconds), (5, trained[2]));
+    }
+
+    #[derive(Serialize, serde::Deserialize)]
+    struct Counter {
+        n: u32,
+        training_seconds: f64,
+    }
+
+    impl Resumable for Counter {
+        fn iteration(&self) -> u32 {
+            self.n
+        }
+        fn training_seconds(&mut self) -> &mut f64 {
+            &mut self.training_seconds
+        }
     }
 
     #[test]

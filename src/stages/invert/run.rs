@@ -15,7 +15,9 @@ use crate::io::AtomicFiles;
 use crate::scene::{EnvRef, Scene, Surfels};
 use crate::shade::envmap::EnvMap;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
-use crate::stages::common::{read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop};
+use crate::stages::common::{
+    read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog, StageLoop,
+};
 use crate::stages::reconstruct::run::split;
 use crate::stages::refine::run::read_stage_scene;
 use crate::trace::TraceScene;
@@ -106,6 +108,15 @@ struct Checkpoint {
     inverter: Inverter,
     #[serde(default)]
     training_seconds: f64,
+}
+
+impl Resumable for Checkpoint {
+    fn iteration(&self) -> u32 {
+        self.inverter.iteration
+    }
+    fn training_seconds(&mut self) -> &mut f64 {
+        &mut self.training_seconds
+    }
 }
 
 fn read_resumable(path: &Path, settings: &Settings, surfels: &[Surfels]) -> Result<Checkpoint> {
@@ -291,7 +302,6 @@ pub fn invert(opts: &Options) -> Result<Report> {
         opts.resume,
         opts.quiet,
         |p| read_resumable(p, &opts.settings, &surfels),
-        |c: &Checkpoint| c.inverter.iteration,
         || {
             say(
                 opts.quiet,
@@ -314,7 +324,6 @@ pub fn invert(opts: &Options) -> Result<Report> {
     let total = opts.settings.iterations;
     let mut bar = Progress::new(opts.quiet, total as u64, "inverting");
     bar.start_at(c.inverter.iteration as u64);
-    let (trained_before, t_train) = (c.training_seconds, Instant::now());
     StageLoop {
         total,
         log_every: LOG_EVERY,
@@ -325,12 +334,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
     }
     .run(
         &mut c,
-        |c| c.inverter.iteration,
-        |c, _| {
-            let l = c.inverter.step(&mut trace, &mut surfels, &loop_states);
-            c.training_seconds = trained_before + t_train.elapsed().as_secs_f64();
-            Ok(l)
-        },
+        |c, _| Ok(c.inverter.step(&mut trace, &mut surfels, &loop_states)),
         |c, m| {
             // The samples per pixel the last iteration drew, not their window mean.
             let spp = c
@@ -339,7 +343,6 @@ pub fn invert(opts: &Options) -> Result<Report> {
                 .spp_at(c.inverter.iteration.saturating_sub(1));
             m.insert("spp".into(), spp.into());
             m.insert("seconds".into(), t0.elapsed().as_secs_f64().into());
-            m.insert("training_seconds".into(), c.training_seconds.into());
             let l1 = m.get("l1").and_then(|v| v.as_f64()).unwrap_or(0.0);
             format!("L1 {l1:.4} · {spp} spp")
         },

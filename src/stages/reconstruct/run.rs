@@ -69,7 +69,11 @@ pub struct Report {
     pub dataset: String,
     pub iterations: u32,
     pub surfels: usize,
+    /// This process's wall time, reading to writing.
     pub seconds: f64,
+    /// Wall time of the training iterations over every run a `--resume` continued
+    /// ([`crate::stages::common::Resumable::training_seconds`]).
+    pub training_seconds: f64,
     /// Held-out views: PSNR in sRGB over the pixels the capture saw a surface in.
     pub heldout_psnr_srgb: f64,
     pub heldout_views: usize,
@@ -261,7 +265,10 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         }
         say(
             opts.quiet,
-            &format!("resuming at iteration {}", t.iteration),
+            &format!(
+                "resuming at iteration {} ({:.0} s of training so far)",
+                t.iteration, t.training_seconds
+            ),
         );
         let mut t = t;
         // The run's length may be extended (the position schedule keeps its original span).
@@ -443,7 +450,6 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     }
     .run(
         &mut trainer,
-        |t| t.iteration,
         |t, bar| {
             if t.iteration == completion_at && completion_at > 0 {
                 let added = complete(t, &train, opts)?;
@@ -508,6 +514,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     )?;
     let report = Report {
         beneath_support_dropped: beneath,
+        training_seconds: trainer.training_seconds,
         ..report
     };
     let mut files = AtomicFiles::new();
@@ -678,6 +685,7 @@ fn evaluate(
         iterations: opts.settings.iterations,
         surfels: model.surfel_count(),
         seconds: t0.elapsed().as_secs_f64(),
+        training_seconds: 0.0,
         heldout_psnr_srgb: psnrs.iter().sum::<f64>() / psnrs.len().max(1) as f64,
         heldout_views: psnrs.len(),
         train_psnr_srgb: train_psnrs.iter().sum::<f64>() / train_psnrs.len().max(1) as f64,

@@ -21,6 +21,7 @@ use crate::optim::{self, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Component, Rigid, Surfels};
 use crate::splat::{self, ImageGrad, Placement};
+use crate::stages::common::Resumable;
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -439,6 +440,18 @@ pub struct Trainer {
     grad_count: Vec<Vec<u32>>,
     /// Pose increments being optimised (always zero between steps), `[j][o]` as 6 values.
     pose_params: Vec<Vec<f32>>,
+    /// [`Resumable::training_seconds`] (absent from a checkpoint written before it was kept).
+    #[serde(default)]
+    pub training_seconds: f64,
+}
+
+impl Resumable for Trainer {
+    fn iteration(&self) -> u32 {
+        self.iteration
+    }
+    fn training_seconds(&mut self) -> &mut f64 {
+        &mut self.training_seconds
+    }
 }
 
 /// The losses of one iteration (weighted as they enter the objective).
@@ -539,6 +552,7 @@ impl Trainer {
             grad_accum,
             grad_count,
             pose_params,
+            training_seconds: 0.0,
         }
     }
 

@@ -7,7 +7,9 @@ use crate::eval::geometry::{tally_state, GeometryFigures, GeometryTally, LeakOpt
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Scene, BACKGROUND};
-use crate::stages::common::{read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop};
+use crate::stages::common::{
+    read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog, StageLoop,
+};
 use crate::stages::reconstruct::run::split;
 use crate::trace::TraceScene;
 use serde::{Deserialize, Serialize};
@@ -46,7 +48,12 @@ pub struct Report {
     pub settings: Settings,
     pub leak_options: LeakOptions,
     pub iterations: u32,
+    /// This process's wall time, reading to writing.
     pub seconds: f64,
+    /// Wall time of the training iterations over every run a `--resume` continued
+    /// ([`Resumable::training_seconds`]).
+    #[serde(default)]
+    pub training_seconds: f64,
     pub surfels_before: usize,
     pub surfels_after: usize,
     pub pruned: usize,
@@ -155,6 +162,18 @@ struct Checkpoint {
     before: GeometryFigures,
     before_states: Vec<GeometryFigures>,
     surfels_before: usize,
+    /// [`Resumable::training_seconds`] (absent from a checkpoint written before it was kept).
+    #[serde(default)]
+    training_seconds: f64,
+}
+
+impl Resumable for Checkpoint {
+    fn iteration(&self) -> u32 {
+        self.refiner.iteration
+    }
+    fn training_seconds(&mut self) -> &mut f64 {
+        &mut self.training_seconds
+    }
 }
 
 fn read_resumable(path: &Path, settings: &Settings) -> Result<Checkpoint> {
@@ -241,7 +260,6 @@ pub fn refine(opts: &Options) -> Result<Report> {
         opts.resume,
         opts.quiet,
         |p| read_resumable(p, &opts.settings),
-        |c: &Checkpoint| c.refiner.iteration,
         || {
             say(
                 opts.quiet,
@@ -253,6 +271,7 @@ pub fn refine(opts: &Options) -> Result<Report> {
                 before,
                 before_states,
                 surfels_before: scene.surfel_count(),
+                training_seconds: 0.0,
             })
         },
     )?;
@@ -271,7 +290,6 @@ pub fn refine(opts: &Options) -> Result<Report> {
     }
     .run(
         &mut c,
-        |c| c.refiner.iteration,
         |c, _| Ok(c.refiner.step(&loop_states)),
         |c, m| {
             let surfels = c.refiner.surfel_count();
@@ -299,6 +317,7 @@ pub fn refine(opts: &Options) -> Result<Report> {
         leak_options: opts.leaks,
         iterations: c.refiner.iteration,
         seconds: t0.elapsed().as_secs_f64(),
+        training_seconds: c.training_seconds,
         surfels_before: c.surfels_before,
         surfels_after: c.refiner.surfel_count(),
         pruned: c.refiner.pruned,
