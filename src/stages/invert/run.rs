@@ -322,7 +322,9 @@ pub fn invert(opts: &Options) -> Result<Report> {
     let mut trace = TraceScene::from_components(&surfels.iter().collect::<Vec<_>>());
 
     let total = opts.settings.iterations;
-    let mut bar = Progress::new(opts.quiet, total as u64, "inverting");
+    // An iteration's cost is about proportional to its samples per pixel.
+    let mut bar = Progress::new(opts.quiet, total as u64, "inverting")
+        .step_costs(|i| opts.settings.spp_at(i as u32) as f64);
     bar.start_at(c.inverter.iteration as u64);
     StageLoop {
         total,
