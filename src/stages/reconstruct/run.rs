@@ -31,7 +31,7 @@ use crate::eval::report::{
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Component, Rigid, Scene, State};
-use crate::stages::common::{read_checkpoint, say, Progress, StageLog, StageLoop};
+use crate::stages::common::{read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -218,6 +218,189 @@ fn concat(components: &[Component]) -> crate::scene::Surfels {
     all
 }
 
+/// A checkpoint of this dataset's training states and objects, to go on to `opts`' iterations
+/// (the position schedule keeps its original span).
+fn read_resumable(path: &Path, opts: &Options, states: usize, objects: usize) -> Result<Trainer> {
+    let mut t: Trainer = read_checkpoint(path)?;
+    t.adam.validate(path)?;
+    if t.model.poses.len() != states
+        || t.model.colour.len() != states
+        || t.model.components.len() != objects + 1
+        || t.model.components.iter().any(|c| c.sh.len() != states + 1)
+    {
+        return Err(Error::invalid(
+            path,
+            "model",
+            "expected a checkpoint of this dataset's states and objects",
+        ));
+    }
+    t.settings.iterations = opts.settings.iterations;
+    Ok(t)
+}
+
+/// A fresh start: the training views back-projected (item 2), each object's pose in every state
+/// (item 4, written to `poses.json`), the initial components and the graph cut's labels
+/// (item 3).
+fn initialise(
+    dataset: &Dataset,
+    train_states: &[usize],
+    train: &[Vec<Observation>],
+    objects: &[init::ObjectRef],
+    opts: &Options,
+) -> Result<Trainer> {
+    // Initialisation (item 2): every training view back-projected.
+    let bopts = init::BackprojectOptions::default();
+    let clouds: Vec<init::PointCloud> =
+        train.iter().map(|v| init::state_cloud(v, &bopts)).collect();
+    // Poses (item 4).
+    let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
+    let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
+        train_states
+            .iter()
+            .map(|&k| {
+                objects
+                    .iter()
+                    .map(|o| {
+                        let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
+                        let pose = dataset.object_pose(k, &o.name)?;
+                        Ok(pose.compose(&ref_pose.inverse()))
+                    })
+                    .collect::<Result<Vec<_>>>()
+            })
+            .collect::<Result<_>>()?
+    } else {
+        let t = Instant::now();
+        say(
+            opts.quiet,
+            &format!(
+                "registering {} objects in {} states (point clouds, rendered views, ICP polish)",
+                objects.len(),
+                train.len()
+            ),
+        );
+        let ropts = register::RegisterOptions::default();
+        // Each object's clouds in the reference state and in state j, prepared once for
+        // the registration, the polish and the choice below.
+        let pairs = register::object_pairs(&clouds, &ids, &ropts);
+        let reg = register::registrations(&pairs);
+        // The point-cloud registrations are candidates for the analysis-by-synthesis search,
+        // which scores poses by rendering the object into every view of the state.
+        let initial: Vec<Vec<Option<Rigid>>> = reg
+            .iter()
+            .map(|row| row.iter().map(|r| r.map(|r| r.transform)).collect())
+            .collect();
+        let refs = align::median_footprint(&train[0], &ids)
+            .map(|voxel| align::reference_surfels(&train[0], &ids, voxel));
+        let aligned: Vec<Vec<Rigid>> = match refs {
+            Some(refs) => align::object_poses_by_rendering(
+                &refs,
+                &ids,
+                train,
+                &initial,
+                &align::AlignOptions::default(),
+            ),
+            None => initial
+                .iter()
+                .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
+                .collect(),
+        };
+        // Two hypotheses per object and state, each polished in its own basin by ICP
+        // (`register::Pair::polish`): the rendered alignment's pose, which finds the basin
+        // where registration lost the object (study: a thin sign, a chrome bottle upside
+        // down; bedroom: a lamp 65° off) but is biased by ~1-2 cm and a few degrees, and
+        // registration's estimate, right where the alignment's score chose a wrong basin
+        // (study: an untextured Suzanne 136° off). The one whose geometry fits the clouds
+        // best wins (`register::Pair::best_fit`; colour does not vote across lightings).
+        // Then, where the shape ties turns about the vertical (a solid of revolution, a box
+        // four ways), the texture decides between them (`register::Pair::choose_turn`).
+        let limits = register::PolishLimits::default();
+        let turn = register::TurnOptions::default();
+        let (polished, turned): (Vec<Vec<Rigid>>, Vec<Vec<Rigid>>) = aligned
+            .iter()
+            .enumerate()
+            .map(|(j, row)| {
+                row.iter()
+                    .enumerate()
+                    .map(|(o, pose)| {
+                        let Some(pair) = pairs[j][o].as_ref().filter(|_| j > 0) else {
+                            return (*pose, *pose);
+                        };
+                        // Registration's estimate, where it lies in the basin the
+                        // alignment chose, is a second start there.
+                        let starts: Vec<Rigid> =
+                            std::iter::once(*pose).chain(initial[j][o]).collect();
+                        let from_aligned =
+                            pair.polish(&starts, &limits).map_or(*pose, |r| r.transform);
+                        let from_registered = initial[j][o]
+                            .map(|r| pair.polish(&[r], &limits).map_or(r, |p| p.transform));
+                        let hypotheses: Vec<Rigid> = std::iter::once(from_aligned)
+                            .chain(from_registered)
+                            .collect();
+                        let polished = pair
+                            .best_fit(&hypotheses)
+                            .map_or(from_aligned, |(k, _)| hypotheses[k]);
+                        let turned = pair
+                            .choose_turn(&polished, Vec3::Y, &limits, &turn)
+                            .transform;
+                        (polished, turned)
+                    })
+                    .unzip()
+            })
+            .unzip();
+        say(
+                opts.quiet,
+                &format!(
+                    "registered {} objects in {} states in {:.1} s (point clouds, rendered views, ICP polish, turns)",
+                    objects.len(),
+                    train.len(),
+                    t.elapsed().as_secs_f64()
+                ),
+            );
+        crate::stages::common::write_checkpoint(
+            &opts.out.join(PoseSteps::FILE),
+            &PoseSteps {
+                format: PoseSteps::FORMAT.into(),
+                registered: initial,
+                aligned,
+                polished,
+                turned: turned.clone(),
+            },
+        )?;
+        turned
+    };
+    let iopts = init::InitOptions {
+        voxel: opts.voxel,
+        ..Default::default()
+    };
+    let mut components = init::initial_components(&clouds, objects, &poses, &iopts);
+    // Decomposition (item 3) over the reference state.
+    let all = concat(&components);
+    let seg = segment::segment(
+        &segment::SurfelPoints::from_surfels(&all),
+        &train[0],
+        &segment::SegmentParams::default(),
+    )?;
+    let moved = relabel(&mut components, &seg.labels);
+    say(
+        opts.quiet,
+        &format!(
+            "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
+            all.len(),
+            moved,
+            seg.energy_before,
+            seg.energy_after
+        ),
+    );
+    let model = Model::new(
+        components
+            .iter()
+            .map(|c| RawComponent::from_component(c, poses.len()))
+            .collect(),
+        poses,
+    );
+    Ok(Trainer::new(opts.settings.clone(), model))
+}
+
 /// Stage 1 from the dataset to `scene.glb` and `report.json` in `opts.out`.
 pub fn reconstruct(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
@@ -247,186 +430,13 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         })
         .collect();
 
-    let mut trainer = if opts.resume && checkpoint_path(&opts.out).is_file() {
-        let path = checkpoint_path(&opts.out);
-        let t: Trainer = read_checkpoint(&path)?;
-        t.adam.validate(&path)?;
-        let states = train.len();
-        if t.model.poses.len() != states
-            || t.model.colour.len() != states
-            || t.model.components.len() != objects.len() + 1
-            || t.model.components.iter().any(|c| c.sh.len() != states + 1)
-        {
-            return Err(Error::invalid(
-                &path,
-                "model",
-                "expected a checkpoint of this dataset's states and objects",
-            ));
-        }
-        say(
-            opts.quiet,
-            &format!(
-                "resuming at iteration {} ({:.0} s of training so far)",
-                t.iteration, t.training_seconds
-            ),
-        );
-        let mut t = t;
-        // The run's length may be extended (the position schedule keeps its original span).
-        t.settings.iterations = opts.settings.iterations;
-        t
-    } else {
-        // Initialisation (item 2): every training view back-projected.
-        let bopts = init::BackprojectOptions::default();
-        let clouds: Vec<init::PointCloud> =
-            train.iter().map(|v| init::state_cloud(v, &bopts)).collect();
-        // Poses (item 4).
-        let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
-        let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
-            train_states
-                .iter()
-                .map(|&k| {
-                    objects
-                        .iter()
-                        .map(|o| {
-                            let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
-                            let pose = dataset.object_pose(k, &o.name)?;
-                            Ok(pose.compose(&ref_pose.inverse()))
-                        })
-                        .collect::<Result<Vec<_>>>()
-                })
-                .collect::<Result<_>>()?
-        } else {
-            let t = Instant::now();
-            say(
-                opts.quiet,
-                &format!(
-                    "registering {} objects in {} states (point clouds, rendered views, ICP polish)",
-                    objects.len(),
-                    train.len()
-                ),
-            );
-            let ropts = register::RegisterOptions::default();
-            // Each object's clouds in the reference state and in state j, prepared once for
-            // the registration, the polish and the choice below.
-            let pairs = register::object_pairs(&clouds, &ids, &ropts);
-            let reg = register::registrations(&pairs);
-            // The point-cloud registrations are candidates for the analysis-by-synthesis search,
-            // which scores poses by rendering the object into every view of the state.
-            let initial: Vec<Vec<Option<Rigid>>> = reg
-                .iter()
-                .map(|row| row.iter().map(|r| r.map(|r| r.transform)).collect())
-                .collect();
-            let refs = align::median_footprint(&train[0], &ids)
-                .map(|voxel| align::reference_surfels(&train[0], &ids, voxel));
-            let aligned: Vec<Vec<Rigid>> = match refs {
-                Some(refs) => align::object_poses_by_rendering(
-                    &refs,
-                    &ids,
-                    &train,
-                    &initial,
-                    &align::AlignOptions::default(),
-                ),
-                None => initial
-                    .iter()
-                    .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
-                    .collect(),
-            };
-            // Two hypotheses per object and state, each polished in its own basin by ICP
-            // (`register::Pair::polish`): the rendered alignment's pose, which finds the basin
-            // where registration lost the object (study: a thin sign, a chrome bottle upside
-            // down; bedroom: a lamp 65° off) but is biased by ~1-2 cm and a few degrees, and
-            // registration's estimate, right where the alignment's score chose a wrong basin
-            // (study: an untextured Suzanne 136° off). The one whose geometry fits the clouds
-            // best wins (`register::Pair::best_fit`; colour does not vote across lightings).
-            // Then, where the shape ties turns about the vertical (a solid of revolution, a box
-            // four ways), the texture decides between them (`register::Pair::choose_turn`).
-            let limits = register::PolishLimits::default();
-            let turn = register::TurnOptions::default();
-            let (polished, turned): (Vec<Vec<Rigid>>, Vec<Vec<Rigid>>) = aligned
-                .iter()
-                .enumerate()
-                .map(|(j, row)| {
-                    row.iter()
-                        .enumerate()
-                        .map(|(o, pose)| {
-                            let Some(pair) = pairs[j][o].as_ref().filter(|_| j > 0) else {
-                                return (*pose, *pose);
-                            };
-                            // Registration's estimate, where it lies in the basin the
-                            // alignment chose, is a second start there.
-                            let starts: Vec<Rigid> =
-                                std::iter::once(*pose).chain(initial[j][o]).collect();
-                            let from_aligned =
-                                pair.polish(&starts, &limits).map_or(*pose, |r| r.transform);
-                            let from_registered = initial[j][o]
-                                .map(|r| pair.polish(&[r], &limits).map_or(r, |p| p.transform));
-                            let hypotheses: Vec<Rigid> = std::iter::once(from_aligned)
-                                .chain(from_registered)
-                                .collect();
-                            let polished = pair
-                                .best_fit(&hypotheses)
-                                .map_or(from_aligned, |(k, _)| hypotheses[k]);
-                            let turned = pair
-                                .choose_turn(&polished, Vec3::Y, &limits, &turn)
-                                .transform;
-                            (polished, turned)
-                        })
-                        .unzip()
-                })
-                .unzip();
-            say(
-                    opts.quiet,
-                    &format!(
-                        "registered {} objects in {} states in {:.1} s (point clouds, rendered views, ICP polish, turns)",
-                        objects.len(),
-                        train.len(),
-                        t.elapsed().as_secs_f64()
-                    ),
-                );
-            crate::stages::common::write_checkpoint(
-                &opts.out.join(PoseSteps::FILE),
-                &PoseSteps {
-                    format: PoseSteps::FORMAT.into(),
-                    registered: initial,
-                    aligned,
-                    polished,
-                    turned: turned.clone(),
-                },
-            )?;
-            turned
-        };
-        let iopts = init::InitOptions {
-            voxel: opts.voxel,
-            ..Default::default()
-        };
-        let mut components = init::initial_components(&clouds, &objects, &poses, &iopts);
-        // Decomposition (item 3) over the reference state.
-        let all = concat(&components);
-        let seg = segment::segment(
-            &segment::SurfelPoints::from_surfels(&all),
-            &train[0],
-            &segment::SegmentParams::default(),
-        )?;
-        let moved = relabel(&mut components, &seg.labels);
-        say(
-            opts.quiet,
-            &format!(
-                "initialised {} surfels ({} relabelled by the graph cut, energy {:.1} -> {:.1})",
-                all.len(),
-                moved,
-                seg.energy_before,
-                seg.energy_after
-            ),
-        );
-        let model = Model::new(
-            components
-                .iter()
-                .map(|c| RawComponent::from_component(c, poses.len()))
-                .collect(),
-            poses,
-        );
-        Trainer::new(opts.settings.clone(), model)
-    };
+    let (mut trainer, _) = resume_or_start(
+        &checkpoint_path(&opts.out),
+        opts.resume,
+        opts.quiet,
+        |path| read_resumable(path, opts, train.len(), objects.len()),
+        || initialise(&dataset, &train_states, &train, &objects, opts),
+    )?;
 
     // Training (item 6) with completion (item 5).
     let views: Vec<Vec<&Observation>> = train.iter().map(|v| v.iter().collect()).collect();
@@ -698,4 +708,62 @@ fn evaluate(
         beneath_support_dropped: Vec::new(),
         oracle_poses: opts.oracle_poses,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stages::common::write_checkpoint;
+
+    fn component(id: u32) -> Component {
+        let mut surfels = crate::scene::Surfels::with_sh_degree(0);
+        let q = [0.0, 0.0, 0.0, 1.0];
+        surfels.push([0.0; 3], q, [0.1, 0.1], 0.9, &[[0.0; 3]], [0.5; 3], 0.0, 0.5);
+        Component {
+            name: format!("c{id}"),
+            id,
+            surfels,
+        }
+    }
+
+    #[test]
+    fn a_checkpoint_resumes_only_on_the_states_and_objects_it_was_made_of() {
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let path = checkpoint_path(dir.path());
+        // Two training states, one object.
+        let model = Model::new(
+            [component(0), component(1)]
+                .iter()
+                .map(|c| RawComponent::from_component(c, 2))
+                .collect(),
+            vec![vec![Rigid::IDENTITY], vec![Rigid::IDENTITY]],
+        );
+        let mut trainer = Trainer::new(Settings::fast(), model);
+        trainer.iteration = 40;
+        write_checkpoint(&path, &trainer).expect("written");
+        let opts = Options {
+            dataset: dir.path().join("dataset.json"),
+            out: dir.path().to_path_buf(),
+            settings: Settings {
+                iterations: 90,
+                ..Settings::fast()
+            },
+            oracle_poses: false,
+            resume: true,
+            quiet: true,
+            voxel: 0.01,
+            tau_d: 0.05,
+        };
+        // The same shape resumes where it was, to go on to the run's new length.
+        let back = read_resumable(&path, &opts, 2, 1).expect("the same states and objects");
+        assert_eq!((back.iteration, back.settings.iterations), (40, 90));
+        // Another dataset's states or objects are a clear error naming the file and the field.
+        for (states, objects) in [(3, 1), (1, 1), (2, 2), (2, 0)] {
+            let err = read_resumable(&path, &opts, states, objects)
+                .err()
+                .unwrap_or_else(|| panic!("{states} states, {objects} objects resumed"));
+            let msg = err.to_string();
+            assert!(msg.contains("checkpoint.json") && msg.contains("model"), "{msg}");
+        }
+    }
 }
