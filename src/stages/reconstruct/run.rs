@@ -718,7 +718,16 @@ mod tests {
     fn component(id: u32) -> Component {
         let mut surfels = crate::scene::Surfels::with_sh_degree(0);
         let q = [0.0, 0.0, 0.0, 1.0];
-        surfels.push([0.0; 3], q, [0.1, 0.1], 0.9, &[[0.0; 3]], [0.5; 3], 0.0, 0.5);
+        surfels.push(
+            [0.0; 3],
+            q,
+            [0.1, 0.1],
+            0.9,
+            &[[0.0; 3]],
+            [0.5; 3],
+            0.0,
+            0.5,
+        );
         Component {
             name: format!("c{id}"),
             id,
@@ -763,7 +772,10 @@ mod tests {
                 .err()
                 .unwrap_or_else(|| panic!("{states} states, {objects} objects resumed"));
             let msg = err.to_string();
-            assert!(msg.contains("checkpoint.json") && msg.contains("model"), "{msg}");
+            assert!(
+                msg.contains("checkpoint.json") && msg.contains("model"),
+                "{msg}"
+            );
         }
     }
 }
