@@ -106,12 +106,17 @@ def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):
     assert (work / "checkpoint.json").is_file()
 
     # Resuming continues from iteration 40 instead of starting again, its training time
-    # carried over.
+    # carried over; other settings than the checkpoint's (here the seed) are refused, and the
+    # checkpoint is left as it was.
     a_day_of_training(work / "checkpoint.json", report)
     resumed = json.loads(ok("--json", "reconstruct", ds, "-o", work, "--iterations", "60", "--resume"))
     log = [json.loads(line) for line in (work / "log.jsonl").read_text().splitlines()]
     assert [entry["iteration"] for entry in log][-2:] == [50, 60]
     assert_a_day_carried_over(resumed, log, 40)
+    kept = (work / "checkpoint.json").read_bytes()
+    p = run("reconstruct", ds, "-o", work, "--iterations", "80", "--resume", "--seed", "7")
+    assert p.returncode == 2 and "checkpoint.json" in p.stderr and "settings" in p.stderr, p.stderr
+    assert "panicked" not in p.stderr and (work / "checkpoint.json").read_bytes() == kept
 
     out = tmp_path / "baked"
     ok("--quiet", "render", work / "scene.glb", "--state", "state1", "--cameras", ds, "--baked", "--out", out)

@@ -361,6 +361,31 @@ impl StageLoop<'_> {
     }
 }
 
+/// A resumed run may go on longer than its checkpoint's run meant to, but every other setting
+/// must be the one it started with: else an error naming `path` and the field `settings`,
+/// ending with what to do (`hint`). `iterations` picks the run's length out of the settings.
+pub fn check_resumed_settings<S: Clone + PartialEq>(
+    path: &Path,
+    checkpoint: &S,
+    run: &S,
+    iterations: impl Fn(&mut S) -> &mut u32,
+    hint: &str,
+) -> Result<()> {
+    let without_length = |s: &S| {
+        let mut s = s.clone();
+        *iterations(&mut s) = 0;
+        s
+    };
+    if without_length(checkpoint) != without_length(run) {
+        return Err(Error::invalid(
+            path,
+            "settings",
+            format!("the checkpoint was made with other settings: {hint}"),
+        ));
+    }
+    Ok(())
+}
+
 /// Opens a stage's checkpoint for `--resume` when asked and present (`read` validates it
 /// against this run), otherwise starts afresh with `fresh`; says which. Returns the state and
 /// whether it was resumed.

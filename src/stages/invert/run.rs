@@ -16,7 +16,8 @@ use crate::scene::{EnvRef, Scene, Surfels};
 use crate::shade::envmap::EnvMap;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
 use crate::stages::common::{
-    read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog, StageLoop,
+    check_resumed_settings, read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog,
+    StageLoop,
 };
 use crate::stages::reconstruct::run::split;
 use crate::stages::refine::run::read_stage_scene;
@@ -121,17 +122,13 @@ impl Resumable for Checkpoint {
 
 fn read_resumable(path: &Path, settings: &Settings, surfels: &[Surfels]) -> Result<Checkpoint> {
     let mut c: Checkpoint = read_checkpoint(path)?;
-    let same = |s: &Settings| Settings {
-        iterations: 0,
-        ..s.clone()
-    };
-    if same(&c.inverter.settings) != same(settings) {
-        return Err(Error::invalid(
-            path,
-            "settings",
-            "the checkpoint was made with other settings: resume with the same preset, schedule and seed, or start afresh without --resume",
-        ));
-    }
+    check_resumed_settings(
+        path,
+        &c.inverter.settings,
+        settings,
+        |s| &mut s.iterations,
+        "resume with the same preset, schedule and seed, or start afresh without --resume",
+    )?;
     let counts: Vec<usize> = c
         .inverter
         .materials

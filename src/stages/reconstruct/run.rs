@@ -31,7 +31,9 @@ use crate::eval::report::{
 use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Component, Rigid, Scene, State};
-use crate::stages::common::{read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop};
+use crate::stages::common::{
+    check_resumed_settings, read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop,
+};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -218,10 +220,23 @@ fn concat(components: &[Component]) -> crate::scene::Surfels {
     all
 }
 
-/// A checkpoint of this dataset's training states and objects, to go on to `opts`' iterations
+/// A checkpoint of this dataset's training states and objects, made with these `settings`, to go
+/// on to their iterations
 /// (the position schedule keeps its original span).
-fn read_resumable(path: &Path, opts: &Options, states: usize, objects: usize) -> Result<Trainer> {
+fn read_resumable(
+    path: &Path,
+    settings: &Settings,
+    states: usize,
+    objects: usize,
+) -> Result<Trainer> {
     let mut t: Trainer = read_checkpoint(path)?;
+    check_resumed_settings(
+        path,
+        &t.settings,
+        settings,
+        |s| &mut s.iterations,
+        "resume with the same preset and switches, or start afresh without --resume",
+    )?;
     t.adam.validate(path)?;
     if t.model.poses.len() != states
         || t.model.colour.len() != states
@@ -234,7 +249,7 @@ fn read_resumable(path: &Path, opts: &Options, states: usize, objects: usize) ->
             "expected a checkpoint of this dataset's states and objects",
         ));
     }
-    t.settings.iterations = opts.settings.iterations;
+    t.settings.iterations = settings.iterations;
     Ok(t)
 }
 
@@ -434,7 +449,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         &checkpoint_path(&opts.out),
         opts.resume,
         opts.quiet,
-        |path| read_resumable(path, opts, train.len(), objects.len()),
+        |path| read_resumable(path, &opts.settings, train.len(), objects.len()),
         || initialise(&dataset, &train_states, &train, &objects, opts),
     )?;
 
@@ -736,7 +751,7 @@ mod tests {
     }
 
     #[test]
-    fn a_checkpoint_resumes_only_on_the_states_and_objects_it_was_made_of() {
+    fn a_checkpoint_resumes_only_on_the_settings_states_and_objects_it_was_made_of() {
         let dir = tempfile::tempdir().expect("a temporary directory");
         let path = checkpoint_path(dir.path());
         // Two training states, one object.
@@ -750,30 +765,44 @@ mod tests {
         let mut trainer = Trainer::new(Settings::fast(), model);
         trainer.iteration = 40;
         write_checkpoint(&path, &trainer).expect("written");
-        let opts = Options {
-            dataset: dir.path().join("dataset.json"),
-            out: dir.path().to_path_buf(),
-            settings: Settings {
-                iterations: 90,
-                ..Settings::fast()
-            },
-            oracle_poses: false,
-            resume: true,
-            quiet: true,
-            voxel: 0.01,
-            tau_d: 0.05,
+        let settings = Settings {
+            iterations: 90,
+            ..Settings::fast()
         };
         // The same shape resumes where it was, to go on to the run's new length.
-        let back = read_resumable(&path, &opts, 2, 1).expect("the same states and objects");
+        let back = read_resumable(&path, &settings, 2, 1).expect("the same states and objects");
         assert_eq!((back.iteration, back.settings.iterations), (40, 90));
         // Another dataset's states or objects are a clear error naming the file and the field.
         for (states, objects) in [(3, 1), (1, 1), (2, 2), (2, 0)] {
-            let err = read_resumable(&path, &opts, states, objects)
+            let err = read_resumable(&path, &settings, states, objects)
                 .err()
                 .unwrap_or_else(|| panic!("{states} states, {objects} objects resumed"));
             let msg = err.to_string();
             assert!(
                 msg.contains("checkpoint.json") && msg.contains("model"),
+                "{msg}"
+            );
+        }
+        // Another preset, or one switch or the seed changed, is an error naming the settings:
+        // the run would otherwise go on with the checkpoint's, silently.
+        let others = [
+            Settings::paper(),
+            Settings {
+                seed: settings.seed + 1,
+                ..settings.clone()
+            },
+            Settings {
+                pose_from: 30,
+                ..settings.clone()
+            },
+        ];
+        for other in others {
+            let err = read_resumable(&path, &other, 2, 1)
+                .err()
+                .unwrap_or_else(|| panic!("resumed with {other:?}"));
+            let msg = err.to_string();
+            assert!(
+                msg.contains("checkpoint.json") && msg.contains("settings"),
                 "{msg}"
             );
         }

@@ -8,7 +8,8 @@ use crate::io::dataset::{Dataset, Observation};
 use crate::io::AtomicFiles;
 use crate::scene::{Scene, BACKGROUND};
 use crate::stages::common::{
-    read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog, StageLoop,
+    check_resumed_settings, read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog,
+    StageLoop,
 };
 use crate::stages::reconstruct::run::split;
 use crate::trace::TraceScene;
@@ -178,18 +179,13 @@ impl Resumable for Checkpoint {
 
 fn read_resumable(path: &Path, settings: &Settings) -> Result<Checkpoint> {
     let mut c: Checkpoint = read_checkpoint(path)?;
-    // A run may be resumed to go further; everything else must be what it started with.
-    let same = |s: &Settings| Settings {
-        iterations: 0,
-        ..s.clone()
-    };
-    if same(&c.refiner.settings) != same(settings) {
-        return Err(Error::invalid(
-            path,
-            "settings",
-            "the checkpoint was made with other settings: resume with the same preset, seed and switches, or start afresh without --resume",
-        ));
-    }
+    check_resumed_settings(
+        path,
+        &c.refiner.settings,
+        settings,
+        |s| &mut s.iterations,
+        "resume with the same preset, seed and switches, or start afresh without --resume",
+    )?;
     c.refiner.set_iterations(settings.iterations);
     Ok(c)
 }
