@@ -253,7 +253,8 @@ pub struct ReconstructArgs {
     /// "photometric" (every term), "geometry" (the coverage, depth and normal terms only, which
     /// a change of lighting does not bias) or "off" (default: the presets' choice, stage 1's
     /// registered poses are kept; on the demo both refinements moved them farther from the
-    /// truth: `train::Settings::fast`).
+    /// truth: `train::Settings::fast`). A run resumed with more --iterations keeps the start
+    /// its checkpoint had.
     #[arg(long)]
     pub refine_poses: Option<String>,
     /// Continue from --out/checkpoint.json if it is there.

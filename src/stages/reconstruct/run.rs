@@ -221,8 +221,12 @@ fn concat(components: &[Component]) -> crate::scene::Surfels {
 }
 
 /// A checkpoint of this dataset's training states and objects, made with these `settings`, to go
-/// on to their iterations
-/// (the position schedule keeps its original span).
+/// on to their iterations (the position schedule keeps its original span).
+///
+/// `--refine-poses` starts moving poses a third of the way into `--iterations`, so a run
+/// lengthened on resume asks for a later start than its checkpoint's: when both refine poses,
+/// the checkpoint's start is kept (its poses may already have moved; holding them again until
+/// the new third would not undo that, only stall it).
 fn read_resumable(
     path: &Path,
     settings: &Settings,
@@ -230,12 +234,16 @@ fn read_resumable(
     objects: usize,
 ) -> Result<Trainer> {
     let mut t: Trainer = read_checkpoint(path)?;
+    let mut settings = settings.clone();
+    if settings.pose_from != u32::MAX && t.settings.pose_from != u32::MAX {
+        settings.pose_from = t.settings.pose_from;
+    }
     check_resumed_settings(
         path,
         &t.settings,
-        settings,
+        &settings,
         |s| &mut s.iterations,
-        "resume with the same preset and switches, or start afresh without --resume",
+        "resume with the same preset, seed and switches, or start afresh without --resume",
     )?;
     t.adam.validate(path)?;
     if t.model.poses.len() != states
@@ -772,6 +780,28 @@ mod tests {
         // The same shape resumes where it was, to go on to the run's new length.
         let back = read_resumable(&path, &settings, 2, 1).expect("the same states and objects");
         assert_eq!((back.iteration, back.settings.iterations), (40, 90));
+        // A run refining poses, lengthened on resume, keeps the start its checkpoint had
+        // (`--refine-poses` derives it from `--iterations`).
+        let refining = Settings {
+            pose_from: 30,
+            ..Settings::fast()
+        };
+        let mut refined = trainer.clone();
+        refined.settings = refining.clone();
+        write_checkpoint(&path, &refined).expect("written");
+        let longer = Settings {
+            iterations: 900,
+            pose_from: 300,
+            ..refining.clone()
+        };
+        let back = read_resumable(&path, &longer, 2, 1).expect("a longer run refining poses");
+        assert_eq!(
+            (back.settings.pose_from, back.settings.iterations),
+            (30, 900)
+        );
+        // Not refining poses where the checkpoint did is another switch.
+        assert!(read_resumable(&path, &settings, 2, 1).is_err());
+        write_checkpoint(&path, &trainer).expect("written");
         // Another dataset's states or objects are a clear error naming the file and the field.
         for (states, objects) in [(3, 1), (1, 1), (2, 2), (2, 0)] {
             let err = read_resumable(&path, &settings, states, objects)
