@@ -267,7 +267,7 @@ fn unseen_object_keeps_its_candidate() {
 #[ignore]
 fn demo() {
     use lightfuse::io::dataset::Dataset;
-    use lightfuse::stages::reconstruct::{init, register, run};
+    use lightfuse::stages::reconstruct::{init, register};
     let path =
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/demo/dataset/dataset.json");
     let ds = Dataset::read(path).or_else(|_| Dataset::read(path.parent().unwrap()));
@@ -275,7 +275,7 @@ fn demo() {
         eprintln!("demo dataset not found");
         return;
     };
-    let (train, _held) = run::split(ds.training_observations().unwrap());
+    let (train, _held) = lightfuse::io::dataset::split(ds.training_observations().unwrap());
     let ids: Vec<u8> = ds.objects.iter().map(|o| o.id as u8).collect();
     let t0 = std::time::Instant::now();
     let bopts = init::BackprojectOptions::default();

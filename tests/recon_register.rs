@@ -12,6 +12,7 @@
 use glam::{Quat, Vec3};
 use lightfuse::scene::synthetic::SplitMix;
 use lightfuse::scene::Rigid;
+use lightfuse::spatial::KdTree;
 use lightfuse::stages::reconstruct::init::PointCloud;
 use lightfuse::stages::reconstruct::register::*;
 

@@ -7,6 +7,7 @@
 use glam::{Quat, Vec3};
 use lightfuse::io::dataset::Observation;
 use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::transform;
 use lightfuse::scene::{Camera, Component, Rigid, Surfels, SH_C0};
 use lightfuse::splat::{self, Placement};
 use lightfuse::stages::reconstruct::train::{Model, PoseGradient, RawComponent, Settings, Trainer};
@@ -195,7 +196,7 @@ fn trained_poses(
 fn poses_are_recovered_from_splatting_gradients() {
     let comps = scene();
     let (truth, obs) = two_states(&comps, 0.0);
-    let start = splat::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
+    let start = transform::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
     let (e_t0, e_r0) = (distance(&start, &truth), angle_deg(&start, &truth));
     let [reference, est] = trained_poses(&comps, &obs, start, frozen_surfels(600));
     let (e_t, e_r) = (distance(&est, &truth), angle_deg(&est, &truth));
@@ -235,7 +236,7 @@ fn a_moved_shadow_does_not_pull_the_pose_with_the_lighting_free_gradient() {
             }
         }
     }
-    let start = splat::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
+    let start = transform::perturb(&truth, [0.02, 0.0, -0.015], [0.0, 0.05, 0.0]);
     let run = |gradient: PoseGradient| {
         let settings = Settings {
             pose_gradient: gradient,
@@ -426,8 +427,8 @@ fn labels_hold_over_training() {
     let reference: Vec<&Observation> = obs[0].iter().collect();
     let share =
         |c: &[Component]| lightfuse::eval::labels::label_shares(c, &reference, &objects)[0].1;
-    let near = splat::perturb(&truth, [0.01, 0.0, -0.011], [0.0, 0.052, 0.0]);
-    let far = splat::perturb(&truth, [0.03, 0.0, -0.03], [0.0, 0.15, 0.0]);
+    let near = transform::perturb(&truth, [0.01, 0.0, -0.011], [0.0, 0.052, 0.0]);
+    let far = transform::perturb(&truth, [0.03, 0.0, -0.03], [0.0, 0.15, 0.0]);
     for (start, pose_from) in [(near, 100), (far, u32::MAX)] {
         let model = Model::new(
             bad.iter()

@@ -11,9 +11,10 @@
 //! order could differ, and it does not.
 
 use glam::Vec3;
+use lightfuse::scene::Material;
 use lightfuse::scene::{EnvRef, Environment, Scene};
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
-use lightfuse::shade::{brdf, EnvMap, Material, Sampler};
+use lightfuse::shade::{brdf, EnvMap, Sampler};
 use lightfuse::trace::TraceScene;
 use std::path::Path;
 

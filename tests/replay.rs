@@ -19,11 +19,12 @@
 
 use glam::Vec3;
 use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::Material;
 use lightfuse::scene::{Environment, Scene, Surfels};
 use lightfuse::shade::brdf::MaterialGrad;
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, Strategy};
 use lightfuse::shade::replay::PathReplay;
-use lightfuse::shade::{EnvMap, Material, Sampler};
+use lightfuse::shade::{EnvMap, Sampler};
 use lightfuse::trace::{Placed, RecordGrad, SurfaceRecord, TraceGradients, TraceRay, TraceScene};
 
 mod surfel_scenes;

@@ -17,8 +17,9 @@
 mod common;
 
 use glam::{DVec3, Vec3};
+use lightfuse::scene::material::{self, Material};
 use lightfuse::scene::Environment;
-use lightfuse::shade::brdf::{self, Material};
+use lightfuse::shade::brdf;
 use lightfuse::shade::envmap::{self, EnvMap};
 use lightfuse::shade::sobol::Sampler;
 use rand::{Rng, SeedableRng};
@@ -340,7 +341,7 @@ fn brdf_material_adjoint_matches_f64_finite_differences() {
                 "{m:?} wo {wo} wi {wi}, parameter {i}: {got:?} vs {want:?}"
             );
         }
-        if roughness * roughness < brdf::MIN_ALPHA {
+        if roughness * roughness < material::MIN_ALPHA {
             assert_eq!(got[4], 0.0);
         }
     }

@@ -27,6 +27,7 @@
 
 use glam::{DQuat, DVec3, Mat3, Quat, Vec3};
 use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::transform;
 use lightfuse::scene::{sh_coeffs, Camera, Rigid, Surfels};
 use lightfuse::splat::reference::{self, RefComponent, RefImage};
 use lightfuse::splat::{self, ImageGrad, Placement, SplatImage};
@@ -749,9 +750,9 @@ fn poison_surfels_are_culled() {
     assert!(s.sh.iter().flatten().all(|x| x.is_finite()));
 }
 
-/// The pivoted pose increment ([`splat::perturb_about`]) and its gradient
-/// ([`splat::TransformGrad::about`]) agree with each other. The loss L(T) = Σᵢ aᵢ·(T xᵢ) is
-/// linear in the placed points, so its gradient in [`splat::perturb`]'s parametrisation is
+/// The pivoted pose increment ([`transform::perturb_about`]) and its gradient
+/// ([`transform::TransformGrad::about`]) agree with each other. The loss L(T) = Σᵢ aᵢ·(T xᵢ) is
+/// linear in the placed points, so its gradient in [`transform::perturb`]'s parametrisation is
 /// known in closed form (dL/dδ = Σ aᵢ, dL/dω = Σ (R xᵢ) × aᵢ: what the backward pass returns,
 /// tested against the reference above); converted to the pivot, it must match central
 /// differences of L(perturb_about(T, δ, ω, p)) at 0 with h = 1e-3 (the increment is applied
@@ -784,7 +785,7 @@ fn pivoted_pose_increment_matches_its_gradient() {
                 .map(|(x, a)| (q * x.as_dvec3() + tt).dot(a.as_dvec3()))
                 .sum()
         };
-        let g = splat::TransformGrad {
+        let g = transform::TransformGrad {
             translation: a.iter().copied().sum::<Vec3>().to_array(),
             rotation: xs
                 .iter()
@@ -799,7 +800,7 @@ fn pivoted_pose_increment_matches_its_gradient() {
             let step = |s: f32| {
                 let mut d = [0.0f32; 6];
                 d[k] = s;
-                splat::perturb_about(&t, [d[0], d[1], d[2]], [d[3], d[4], d[5]], pivot)
+                transform::perturb_about(&t, [d[0], d[1], d[2]], [d[3], d[4], d[5]], pivot)
             };
             let fd = (loss(&step(h)) - loss(&step(-h))) / (2.0 * h as f64);
             let analytic = if k < 3 {
@@ -812,7 +813,7 @@ fn pivoted_pose_increment_matches_its_gradient() {
                 "parameter {k}: analytic {analytic}, central difference {fd}"
             );
         }
-        let turned = splat::perturb_about(&t, [0.0; 3], [0.3, -0.2, 0.1], pivot);
+        let turned = transform::perturb_about(&t, [0.0; 3], [0.3, -0.2, 0.1], pivot);
         let before = Vec3::from_array(pivot);
         let placed = |r: &Rigid, p: Vec3| {
             r.quat() * (t.quat().inverse() * (p - Vec3::from_array(t.translation)))

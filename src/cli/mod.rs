@@ -6,6 +6,7 @@ mod info;
 mod render;
 
 use crate::error::{Error, Result};
+use crate::io::work::WorkDir;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -759,7 +760,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
     }
     let report = run::reconstruct(&run::Options {
         dataset: a.dataset.clone(),
-        out: a.out.clone(),
+        work: WorkDir::new(&a.out),
         settings,
         oracle_poses: a.oracle_poses,
         resume: a.resume,
@@ -775,7 +776,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
     } else if !cli.quiet {
         eprintln!(
             "wrote {}: {} surfels in {:.0} s; held-out PSNR {:.2} dB (sRGB, covered pixels, {} views), median depth error {:.3} m ({:.2}% of the scene)",
-            a.out.join("scene.glb").display(),
+            WorkDir::new(&a.out).scene().display(),
             report.surfels,
             report.seconds,
             report.heldout_psnr_srgb,
@@ -846,7 +847,7 @@ fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
     };
     let report = refine::refine(&refine::Options {
         dataset: a.dataset.clone(),
-        work: a.work.clone(),
+        work: WorkDir::new(&a.work),
         scene: a.scene.clone(),
         settings,
         leaks: Default::default(),
@@ -862,7 +863,7 @@ fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
         let (b, f) = (&report.before, &report.after);
         eprintln!(
             "wrote {}: {} surfels ({} pruned) in {:.0} s; held-out views, ray traced, before -> after:",
-            a.work.join("refined.glb").display(),
+            WorkDir::new(&a.work).refined().display(),
             report.surfels_after,
             report.pruned,
             report.seconds
@@ -928,7 +929,7 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     }
     let report = invert::invert(&invert::Options {
         dataset: a.dataset.clone(),
-        work: a.work.clone(),
+        work: WorkDir::new(&a.work),
         scene: a.scene.clone(),
         settings,
         eval_spp: a.eval_spp,
@@ -944,7 +945,7 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     } else if !cli.quiet {
         eprintln!(
             "wrote {} and .usda: {} surfels, {} iterations in {:.0} s",
-            a.work.join("relightable.glb").display(),
+            WorkDir::new(&a.work).relightable().display(),
             report.surfels,
             report.iterations,
             report.seconds
@@ -975,9 +976,10 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
 
 fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
     use crate::eval::relight;
+    let work = WorkDir::new(&a.work);
     let report = relight::evaluate(&relight::Options {
         dataset: a.dataset.clone(),
-        work: a.work.clone(),
+        work: work.clone(),
         spp: a.spp,
         seed: a.seed,
         images: !a.no_images,
@@ -993,8 +995,8 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
     } else if !cli.quiet {
         eprintln!(
             "wrote {} and {} in {:.0} s\n",
-            a.work.join("eval").join("eval.md").display(),
-            a.work.join("eval").join("report.html").display(),
+            work.eval_md().display(),
+            work.report_html().display(),
             report.seconds
         );
         println!("{}", relight::markdown(&report));
@@ -1013,16 +1015,17 @@ fn parse_loss(l: &str) -> Result<crate::stages::invert::train::Loss> {
 
 fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
     use crate::stages::pipeline;
+    let work = WorkDir::new(&a.out);
     let steps = pipeline::run(&pipeline::Options {
         dataset: a.dataset.clone(),
-        work: a.out.clone(),
+        work: work.clone(),
         preset: a.preset.clone(),
         force: a.force,
         denoise: !a.no_denoise,
         loss: a.loss.as_deref().map(parse_loss).transpose()?,
         quiet: cli.quiet || cli.json,
     })?;
-    let eval_md = a.out.join("eval").join("eval.md");
+    let eval_md = work.eval_md();
     if cli.json {
         println!(
             "{}",
@@ -1034,10 +1037,7 @@ fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
         }
         let table = std::fs::read_to_string(&eval_md).map_err(|e| Error::io(&eval_md, e))?;
         println!("{table}");
-        eprintln!(
-            "the report: {}",
-            a.out.join("eval").join("report.html").display()
-        );
+        eprintln!("the report: {}", work.report_html().display());
     }
     Ok(())
 }

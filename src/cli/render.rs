@@ -22,7 +22,7 @@ use crate::io::exr::Channels;
 use crate::scene::{Environment, Scene, State};
 use crate::shade::denoise::denoise_render;
 use crate::shade::estimator::{Estimator, PixelFilter};
-use crate::shade::render::{environment_image, render_image, Aovs};
+use crate::shade::render::{environment_image, render_image, Aovs, RenderedImage};
 use crate::shade::EnvMap;
 use crate::trace::TraceScene;
 use std::path::{Path, PathBuf};
@@ -121,36 +121,18 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
     Ok(())
 }
 
-/// Replaces `R, G, B` by Open Image Denoise's estimate, guided by the image's own pixel-centre
-/// AOVs ([`denoise_render`], as `lightfuse evaluate` denoises).
-fn denoise(image: &mut Channels, env: &EnvMap, camera: &crate::scene::Camera) -> Result<()> {
-    let plane = |name: &str| image.get(name).expect("render_image writes every channel");
-    let zip3 = |a: &[f32], b: &[f32], c: &[f32]| -> Vec<[f32; 3]> {
-        (0..a.len()).map(|i| [a[i], b[i], c[i]]).collect()
-    };
-    let aovs = Aovs {
-        alpha: plane("A").to_vec(),
-        depth: plane("Z").to_vec(),
-        normal: zip3(plane("N.X"), plane("N.Y"), plane("N.Z")),
-        albedo: zip3(plane("albedo.R"), plane("albedo.G"), plane("albedo.B")),
-        // Not guides; render_image does not write them.
-        metallic: Vec::new(),
-        roughness: Vec::new(),
-    };
-    let color = zip3(plane("R"), plane("G"), plane("B"));
+/// Replaces the radiance by Open Image Denoise's estimate, guided by the image's own
+/// pixel-centre AOVs ([`denoise_render`], as `lightfuse evaluate` denoises).
+fn denoise(image: &mut RenderedImage, env: &EnvMap, camera: &crate::scene::Camera) -> Result<()> {
     let bg = environment_image(env, camera);
-    let out = denoise_render(&color, &aovs, &bg, &[1.0; 3], image.width, image.height)?;
-    for (name, values) in &mut image.channels {
-        let c = match name.as_str() {
-            "R" => 0,
-            "G" => 1,
-            "B" => 2,
-            _ => continue,
-        };
-        for (v, o) in values.iter_mut().zip(&out) {
-            *v = o[c];
-        }
-    }
+    image.radiance = denoise_render(
+        &image.radiance,
+        &image.aovs,
+        &bg,
+        &[1.0; 3],
+        image.width,
+        image.height,
+    )?;
     Ok(())
 }
 
@@ -231,31 +213,32 @@ fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Resu
     let mut files = Vec::new();
     for view in &views {
         let img = crate::splat::forward(&placements, &view.camera).image;
-        let n = img.pixels();
-        let plane = |f: &dyn Fn(usize) -> f32| (0..n).map(f).collect::<Vec<f32>>();
-        let normal = |i: usize, k: usize| {
-            let v = glam::Vec3::from_array(img.normal[i]);
-            let l = v.length();
-            if l > 0.0 {
-                v[k] / l
-            } else {
-                0.0
-            }
-        };
-        let channels = vec![
-            ("R".to_string(), plane(&|i| img.color[i][0])),
-            ("G".to_string(), plane(&|i| img.color[i][1])),
-            ("B".to_string(), plane(&|i| img.color[i][2])),
-            ("A".to_string(), img.alpha.clone()),
-            ("Z".to_string(), img.depth.clone()),
-            ("N.X".to_string(), plane(&|i| normal(i, 0))),
-            ("N.Y".to_string(), plane(&|i| normal(i, 1))),
-            ("N.Z".to_string(), plane(&|i| normal(i, 2))),
-        ];
-        let image = Channels {
+        // The splatted normal is the alpha-blended one: unit length where it is not zero.
+        let normal = img
+            .normal
+            .iter()
+            .map(|n| {
+                let v = glam::Vec3::from_array(*n);
+                let l = v.length();
+                if l > 0.0 {
+                    (v / l).to_array()
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect();
+        let image = RenderedImage {
             width: img.width as usize,
             height: img.height as usize,
-            channels,
+            radiance: img.color,
+            aovs: Aovs {
+                alpha: img.alpha,
+                depth: img.depth,
+                normal,
+                albedo: Vec::new(),
+                metallic: Vec::new(),
+                roughness: Vec::new(),
+            },
         };
         files.extend(write_view(&image, &a.out, &view.name)?);
     }
@@ -287,25 +270,17 @@ fn srgb8(v: f32) -> u8 {
 }
 
 /// Writes `NAME.exr` (every channel) and `NAME.png` (sRGB preview) into `out`; returns both paths.
-fn write_view(image: &Channels, out: &Path, name: &str) -> Result<[PathBuf; 2]> {
+fn write_view(image: &RenderedImage, out: &Path, name: &str) -> Result<[PathBuf; 2]> {
     let exr = out.join(format!("{name}.exr"));
     let png = out.join(format!("{name}.png"));
-    crate::io::exr::write_channels(image, &exr)?;
+    crate::io::exr::write_channels(&Channels::from_render(image), &exr)?;
     write_png(image, &png)?;
     Ok([exr, png])
 }
 
-fn write_png(image: &Channels, path: &Path) -> Result<()> {
+fn write_png(image: &RenderedImage, path: &Path) -> Result<()> {
     use image::ImageEncoder;
-    let (r, g, b) = (
-        image.get("R").expect("an R channel"),
-        image.get("G").expect("a G channel"),
-        image.get("B").expect("a B channel"),
-    );
-    let mut rgb = Vec::with_capacity(image.width * image.height * 3);
-    for i in 0..image.width * image.height {
-        rgb.extend_from_slice(&[srgb8(r[i]), srgb8(g[i]), srgb8(b[i])]);
-    }
+    let rgb: Vec<u8> = image.radiance.iter().flat_map(|p| p.map(srgb8)).collect();
     let mut bytes = Vec::new();
     image::codecs::png::PngEncoder::new(&mut bytes)
         .write_image(

@@ -22,7 +22,7 @@
 use crate::io::dataset::Observation;
 use crate::scene::surfels::quat_axes;
 use crate::scene::Component;
-use crate::stages::reconstruct::register::KdTree;
+use crate::spatial::KdTree;
 
 /// λ of the 6-D distance, metres: opposite-facing or perpendicular normals (|Δn|² = 2 at 90°)
 /// cost as much as ~2.8 cm of distance, several surfel spacings of a stage-1 reconstruction

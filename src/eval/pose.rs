@@ -19,20 +19,8 @@
 //! `c`; without symmetries `c` is the object's origin. Two non-parallel continuous axes make the
 //! object a uniformly coloured ball: every rotation about its centre is a symmetry.
 
-use crate::scene::Rigid;
+use crate::scene::{Rigid, Symmetry};
 use glam::{DMat3, DQuat, DVec3, Vec3};
-
-/// A rotational symmetry of an object about an axis through `offset`, in its own frame.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Symmetry {
-    /// Axis direction (any length > 0).
-    pub axis: [f32; 3],
-    /// 0 = continuous, n ≥ 2 = n-fold.
-    pub order: u32,
-    /// A point on the axis (object frame); the object's origin when absent.
-    #[serde(default)]
-    pub offset: [f32; 3],
-}
 
 /// Rotation and translation error of one estimate. Serialised with the names `report.json`
 /// uses (docs/formats.md): `rotation_deg`, `rotation_deg_ignoring_symmetry`, `translation_cm`.

@@ -42,6 +42,7 @@ use crate::eval::html;
 use crate::eval::lighting::compare_albedo;
 use crate::eval::metrics::{psnr_hdr, psnr_srgb8, srgb8, ssim_srgb8};
 use crate::io::dataset::{Dataset, Frame};
+use crate::io::work::{read_stage_scene, WorkDir};
 use crate::scene::{Environment, Layout, Scene, State};
 use crate::shade::denoise::denoise_render;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
@@ -65,7 +66,7 @@ pub const ROWS: [(&str, &str); 3] = [
 
 pub struct Options {
     pub dataset: PathBuf,
-    pub work: PathBuf,
+    pub work: WorkDir,
     /// Samples per pixel of the traced rows (the paper: 32).
     pub spp: u32,
     pub seed: u32,
@@ -311,9 +312,8 @@ pub fn check_dataset(d: &Dataset) -> Result<()> {
 }
 
 /// The scene a stage wrote into the work folder, or a clear error naming the stage to run.
-fn stage_scene(work: &Path, file: &str, d: &Dataset, stage: &str) -> Result<(PathBuf, Scene)> {
-    let path = work.join(file);
-    let scene = crate::stages::refine::run::read_stage_scene(
+fn stage_scene(path: PathBuf, d: &Dataset, stage: &str) -> Result<(PathBuf, Scene)> {
+    let scene = read_stage_scene(
         &path,
         d,
         &format!("run `{stage}` first (or `lightfuse run`)"),
@@ -389,8 +389,8 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             "expected a test run of the requested --tables (Table 2's are relight runs with a training_state)",
         ));
     }
-    let (relit_file, relit) = stage_scene(&opts.work, "relightable.glb", &d, "lightfuse invert")?;
-    let (baked_file, baked) = stage_scene(&opts.work, "scene.glb", &d, "lightfuse reconstruct")?;
+    let (relit_file, relit) = stage_scene(opts.work.relightable(), &d, "lightfuse invert")?;
+    let (baked_file, baked) = stage_scene(opts.work.scene(), &d, "lightfuse reconstruct")?;
     // Everything read and checked before anything is rendered or written.
     let mut envs = Vec::with_capacity(runs.len());
     for run in &runs {
@@ -449,9 +449,9 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         .map(|r| if r.is_finite() { r as f32 } else { 1.0 });
     let scales = [[1.0; 3], ratio];
 
-    let out_dir = opts.work.join("eval");
+    let out_dir = opts.work.eval_dir();
     let total: u64 = runs.iter().map(|r| r.frames.len() as u64).sum();
-    let bar = crate::stages::common::Progress::new(opts.quiet, total, "evaluate");
+    let bar = crate::progress::Progress::new(opts.quiet, total, "evaluate");
     let mut rays = 0u64;
     let mut figures: Vec<RunFigures> = runs
         .iter()
@@ -615,16 +615,16 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
     assets.curves = [
         (
             "Stage 1: reconstruction (eq. reconstruction-objective)",
-            "log.jsonl",
+            opts.work.reconstruct().log(),
         ),
         (
             "Stage 2: refinement for ray tracing (eq. geometry-objective)",
-            "refine/log.jsonl",
+            opts.work.refine().log(),
         ),
-        ("Stage 3: inverse rendering", "invert/log.jsonl"),
+        ("Stage 3: inverse rendering", opts.work.invert().log()),
     ]
     .iter()
-    .filter_map(|(title, rel)| html::read_curve(title, &opts.work.join(rel)))
+    .filter_map(|(title, log)| html::read_curve(title, log))
     .collect();
     let report = Report {
         format: FORMAT.into(),
@@ -655,14 +655,14 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         files.write(path, &bytes)?;
     }
     files.write(
-        &out_dir.join("eval.json"),
+        &opts.work.eval_json(),
         serde_json::to_string_pretty(&report)
             .expect("the report serialises")
             .as_bytes(),
     )?;
-    files.write(&out_dir.join("eval.md"), markdown(&report).as_bytes())?;
+    files.write(&opts.work.eval_md(), markdown(&report).as_bytes())?;
     files.write(
-        &out_dir.join("report.html"),
+        &opts.work.report_html(),
         html::page(&report, &assets).as_bytes(),
     )?;
     files.commit()?;

@@ -23,7 +23,7 @@ pub struct DatasetObject {
     /// (its origin unless `offset` says otherwise) that leave its shape and appearance unchanged
     /// (in its frame), so a pose error forgives them ([`crate::eval::pose`]).
     #[serde(default)]
-    pub symmetries: Vec<crate::eval::pose::Symmetry>,
+    pub symmetries: Vec<crate::scene::Symmetry>,
     /// Ground truth, evaluation only: one representative metallic / roughness for the object
     /// ([`ObjectMaterial`]). Absent in datasets written before generate.py recorded it.
     #[serde(default)]
@@ -537,4 +537,20 @@ fn read_mask(path: &Path, camera: &Camera) -> Result<Vec<u8>> {
         ));
     }
     Ok(img.into_luma8().into_raw())
+}
+/// Views with index ≡ 0 (mod HOLDOUT) are withheld from training (every stage holds out the
+/// same views, so their held-out figures are comparable).
+pub const HOLDOUT: usize = 8;
+
+/// Splits the observations of each training state into (training, held-out): views with index
+/// ≡ 0 (mod [`HOLDOUT`]) are held out.
+pub fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Observation>>) {
+    let mut train = Vec::new();
+    let mut held = Vec::new();
+    for state in obs {
+        let (h, t): (Vec<_>, Vec<_>) = state.into_iter().partition(|o| o.view % HOLDOUT == 0);
+        train.push(t);
+        held.push(h);
+    }
+    (train, held)
 }

@@ -3,6 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::scene::Environment;
+use crate::shade::render::RenderedImage;
 use exr::prelude::*;
 use std::io::Cursor;
 use std::path::Path;
@@ -135,6 +136,34 @@ pub struct Channels {
 }
 
 impl Channels {
+    /// The channels `lightfuse render` writes of a rendered view: `R, G, B` (radiance), `A`
+    /// (coverage), `Z` (planar depth), `N.X, N.Y, N.Z` (normal) and, when the image has them,
+    /// `albedo.R, albedo.G, albedo.B` (base colour). docs/formats.md names them.
+    pub fn from_render(image: &RenderedImage) -> Channels {
+        let plane3 = |v: &[[f32; 3]], k: usize| v.iter().map(|p| p[k]).collect::<Vec<f32>>();
+        let aovs = &image.aovs;
+        let mut channels = vec![
+            ("R".to_string(), plane3(&image.radiance, 0)),
+            ("G".to_string(), plane3(&image.radiance, 1)),
+            ("B".to_string(), plane3(&image.radiance, 2)),
+            ("A".to_string(), aovs.alpha.clone()),
+            ("Z".to_string(), aovs.depth.clone()),
+            ("N.X".to_string(), plane3(&aovs.normal, 0)),
+            ("N.Y".to_string(), plane3(&aovs.normal, 1)),
+            ("N.Z".to_string(), plane3(&aovs.normal, 2)),
+        ];
+        if !aovs.albedo.is_empty() {
+            for (k, name) in ["albedo.R", "albedo.G", "albedo.B"].into_iter().enumerate() {
+                channels.push((name.to_string(), plane3(&aovs.albedo, k)));
+            }
+        }
+        Channels {
+            width: image.width,
+            height: image.height,
+            channels,
+        }
+    }
+
     pub fn get(&self, name: &str) -> Option<&[f32]> {
         self.channels
             .iter()

@@ -1,4 +1,5 @@
-//! Every byte that enters or leaves LightFuse: glTF, USD, EXR, PLY, layouts.
+//! Every byte that enters or leaves LightFuse: glTF, USD, EXR, PLY, layouts, datasets and
+//! the work folder.
 
 pub mod cameras;
 pub mod dataset;
@@ -8,6 +9,7 @@ pub mod layout;
 pub mod mesh;
 pub mod ply;
 pub mod usd;
+pub mod work;
 
 use crate::error::{Error, Result};
 use crate::scene::Scene;

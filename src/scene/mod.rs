@@ -5,9 +5,11 @@ pub mod camera;
 pub mod edit;
 pub mod environment;
 pub mod layout;
+pub mod material;
 pub mod mesh;
 pub mod surfelize;
 pub mod surfels;
+pub mod symmetry;
 pub mod synthetic;
 pub mod transform;
 
@@ -15,7 +17,9 @@ pub use camera::Camera;
 pub use edit::{Edit, MaterialChange, MaterialEdit};
 pub use environment::Environment;
 pub use layout::Layout;
+pub use material::Material;
 pub use surfels::{quat_axes, sh_coeffs, Surfels, MAX_SH_DEGREE, SH_C0};
+pub use symmetry::Symmetry;
 pub use transform::Rigid;
 
 use crate::error::{Error, Result};

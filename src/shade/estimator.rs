@@ -39,10 +39,11 @@
 //! path's sample index and a fixed dimension ([`dim`]), so a path is a pure function of
 //! (pixel, sample index, seed) and can be replayed exactly.
 
-use super::brdf::{self, Material};
+use super::brdf;
 use super::envmap::EnvMap;
 use super::replay::{Bounce, PathReplay, Term};
 use super::sobol::Sampler;
+use crate::scene::Material;
 use crate::scene::{Camera, Scene, State};
 use crate::trace::{Placed, SurfaceRecord, TraceRay, WeightedHit};
 use glam::Vec3;

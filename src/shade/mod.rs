@@ -21,6 +21,6 @@ pub mod render;
 pub mod replay;
 pub mod sobol;
 
-pub use brdf::{Material, Sample};
+pub use brdf::Sample;
 pub use envmap::{EnvMap, EnvSample};
 pub use sobol::Sampler;

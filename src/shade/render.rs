@@ -1,15 +1,14 @@
 //! The estimator-to-image loop: every pixel of a camera through the one-bounce estimator
-//! ([`crate::shade::estimator`]), rayon over square tiles, gathered into named float channels.
+//! ([`crate::shade::estimator`]), rayon over square tiles, gathered into a [`RenderedImage`].
 //!
-//! Channels: `R, G, B` (radiance, scene-linear Rec.709, the environment included behind partial
-//! coverage), `A` (mean coverage), `Z` (planar depth, DESIGN §2; 0 = no hit), `N.X, N.Y, N.Z`
-//! (unit world normal facing the camera), `albedo.R/G/B` (base colour); the AOVs come from the
-//! record at the pixel centre. Pixel (x, y) draws from the Sobol stream
-//! `Sampler::new(y·w + x, seed)`.
+//! What a pixel holds: radiance (scene-linear Rec.709, the environment included behind partial
+//! coverage) and the AOVs of the record at the pixel centre: mean coverage, planar depth
+//! (docs/design.md, "Conventions"; 0 = no hit), unit world normal facing the camera and base
+//! colour. Pixel (x, y) draws from the Sobol stream `Sampler::new(y·w + x, seed)`. How an image
+//! is stored (EXR channel names) is `io::exr`'s business, not the renderer's.
 
-use crate::io::exr::Channels;
 use crate::scene::Camera;
-use crate::shade::brdf::Material;
+use crate::scene::Material;
 use crate::shade::estimator::{camera_forward, Estimator, Pixel, PixelFilter};
 use crate::shade::sobol::Sampler;
 use crate::trace::{Placed, SurfaceRecord, TraceRay};
@@ -19,13 +18,17 @@ use rayon::prelude::*;
 /// Image tiles are this many pixels square; a tile is one rayon task.
 pub const TILE: u32 = 16;
 
-/// The channels [`render_image`] returns, in order.
-pub const CHANNELS: [&str; 11] = [
-    "R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z", "albedo.R", "albedo.G", "albedo.B",
-];
+/// A rendered view: radiance and the pixel-centre AOVs, row-major, `width * height` each.
+/// [`render_image`] leaves `aovs.metallic` and `aovs.roughness` empty (they are no guides and
+/// no output of `lightfuse render`); a splatted (baked) image leaves `aovs.albedo` empty too.
+pub struct RenderedImage {
+    pub width: usize,
+    pub height: usize,
+    pub radiance: Vec<[f32; 3]>,
+    pub aovs: Aovs,
+}
 
-/// Renders one camera with `spp` samples per pixel: the image's channels ([`CHANNELS`]) and the
-/// number of rays traced. `progress` is told the number of pixels of each finished tile (from
+/// Renders one camera with `spp` samples per pixel: the image and the number of rays traced. `progress` is told the number of pixels of each finished tile (from
 /// rayon's threads).
 pub fn render_image(
     estimator: &Estimator,
@@ -34,7 +37,7 @@ pub fn render_image(
     spp: u32,
     seed: u32,
     progress: &(dyn Fn(u64) + Sync),
-) -> (Channels, u64) {
+) -> (RenderedImage, u64) {
     let (w, h) = (camera.w, camera.h);
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
@@ -55,46 +58,35 @@ pub fn render_image(
         })
         .collect();
     let n = (w * h) as usize;
-    let mut planes = vec![vec![0.0f32; n]; CHANNELS.len()];
+    let mut image = RenderedImage {
+        width: w as usize,
+        height: h as usize,
+        radiance: vec![[0.0; 3]; n],
+        aovs: Aovs {
+            alpha: vec![0.0; n],
+            depth: vec![0.0; n],
+            normal: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+            metallic: Vec::new(),
+            roughness: Vec::new(),
+        },
+    };
     let mut rays = 0u64;
     for ((x0, y0), buf) in &rendered {
         for y in *y0..(y0 + TILE).min(h) {
             for x in *x0..(x0 + TILE).min(w) {
                 let p = &buf[((y - y0) * TILE + (x - x0)) as usize];
                 let i = (y * w + x) as usize;
-                let values = [
-                    p.rgb[0],
-                    p.rgb[1],
-                    p.rgb[2],
-                    p.alpha,
-                    p.depth,
-                    p.normal[0],
-                    p.normal[1],
-                    p.normal[2],
-                    p.albedo[0],
-                    p.albedo[1],
-                    p.albedo[2],
-                ];
-                for (plane, v) in planes.iter_mut().zip(values) {
-                    plane[i] = v;
-                }
+                image.radiance[i] = p.rgb;
+                image.aovs.alpha[i] = p.alpha;
+                image.aovs.depth[i] = p.depth;
+                image.aovs.normal[i] = p.normal;
+                image.aovs.albedo[i] = p.albedo;
                 rays += p.rays as u64;
             }
         }
     }
-    let channels = CHANNELS
-        .iter()
-        .zip(planes)
-        .map(|(name, v)| (name.to_string(), v))
-        .collect();
-    (
-        Channels {
-            width: w as usize,
-            height: h as usize,
-            channels,
-        },
-        rays,
-    )
+    (image, rays)
 }
 
 /// The environment seen along each pixel centre's camera ray of `camera` (row-major): what a

@@ -47,8 +47,9 @@
 //! estimates ∫ ∂f without bias. Nothing is taped: a sample's replay is a fixed-size value,
 //! recomputed by re-tracing the same Sobol sample, so memory does not grow with spp.
 
-use super::brdf::{self, Material, MaterialGrad};
+use super::brdf::{self, MaterialGrad};
 use super::envmap::EnvMap;
+use crate::scene::Material;
 use crate::trace::{RecordGrad, SurfaceRecord, TraceRay};
 use glam::Vec3;
 

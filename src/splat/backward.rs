@@ -10,10 +10,11 @@
 use super::forward::{clip, row_bits, set_bits, tile_pixels, PREFETCH_AHEAD};
 use super::project::prefetch;
 use super::project::{facing_sign, hit, placement_frame, world_surfel, CULLED};
-use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, TransformGrad, FILTER_INV_VARIANCE};
+use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, FILTER_INV_VARIANCE};
 use super::{TILE, TILE_PIXELS};
 use crate::kernel::composite::Back;
 use crate::kernel::quat_grad;
+use crate::scene::transform::TransformGrad;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 

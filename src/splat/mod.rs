@@ -45,8 +45,8 @@ mod project;
 pub mod reference;
 pub mod sh;
 
+use crate::scene::transform::TransformGrad;
 use crate::scene::{Camera, Rigid, Surfels};
-use glam::{Quat, Vec3};
 
 pub use crate::kernel::{CUTOFF, MAX_OPACITY, MIN_ALPHA, T_MIN};
 
@@ -167,65 +167,11 @@ impl SurfelGrads {
     }
 }
 
-/// Gradient with respect to a component's rigid placement `x ↦ R x + t`, as a 6-vector in the
-/// world frame: the perturbed placement is `x ↦ exp([ω]×) R x + t + δ` ([`perturb`]), and these
-/// are dL/dδ (`translation`) and dL/dω (`rotation`, an axis-angle increment applied on the left,
-/// about the component's placed origin `t`).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct TransformGrad {
-    pub translation: [f32; 3],
-    pub rotation: [f32; 3],
-}
-
-impl TransformGrad {
-    /// The gradient for the increment that turns about `pivot` (world) rather than about the
-    /// placed origin `t` ([`perturb_about`]): its placement `x ↦ exp([ω]×)(R x + t − p) + p + δ`
-    /// is, to first order, [`perturb`]'s with δ + ω × (t − p) for δ, so dL/dδ is unchanged and
-    /// dL/dω becomes dL/dω + (t − p) × dL/dδ (as g·(ω × a) = ω·(a × g)).
-    pub fn about(&self, transform: &Rigid, pivot: [f32; 3]) -> TransformGrad {
-        let arm = Vec3::from_array(transform.translation) - Vec3::from_array(pivot);
-        let g_t = Vec3::from_array(self.translation);
-        TransformGrad {
-            translation: self.translation,
-            rotation: (Vec3::from_array(self.rotation) + arm.cross(g_t)).to_array(),
-        }
-    }
-}
-
-/// [`perturb`] turning about `pivot` (world) rather than about the placed origin `t`:
-/// `x ↦ exp([ω]×)(R x + t − p) + p + δ`. With the pivot at an object's centre a rotation step
-/// does not also move the object (about `t`, the reference world's origin carried along, an
-/// object 2 m from it moves 2 mm per 1e-3 rad); [`TransformGrad::about`] is its gradient.
-pub fn perturb_about(
-    transform: &Rigid,
-    delta: [f32; 3],
-    omega: [f32; 3],
-    pivot: [f32; 3],
-) -> Rigid {
-    let dq = Quat::from_scaled_axis(Vec3::from_array(omega));
-    let p = Vec3::from_array(pivot);
-    let t = dq * (Vec3::from_array(transform.translation) - p) + p + Vec3::from_array(delta);
-    Rigid {
-        rotation: (dq * transform.quat().normalize()).normalize().to_array(),
-        translation: t.to_array(),
-    }
-}
-
 /// Everything [`Forward::backward`] returns, one entry per [`Placement`].
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Gradients {
     pub surfels: Vec<SurfelGrads>,
     pub transforms: Vec<TransformGrad>,
-}
-
-/// The placement `x ↦ exp([ω]×) R x + t + δ`: the increment whose gradient [`TransformGrad`]
-/// holds, for optimisers and tests.
-pub fn perturb(transform: &Rigid, delta: [f32; 3], omega: [f32; 3]) -> Rigid {
-    let q = Quat::from_scaled_axis(Vec3::from_array(omega)) * transform.quat().normalize();
-    Rigid {
-        rotation: q.normalize().to_array(),
-        translation: (Vec3::from_array(transform.translation) + Vec3::from_array(delta)).to_array(),
-    }
 }
 
 /// dL/d(logit α) from dL/dα for a post-sigmoid opacity α: `dα/dx = α (1 − α)`.

@@ -6,14 +6,15 @@
 //! step's checkpoint. A changed preset (or `--force`) runs every step afresh.
 
 use crate::error::{Error, Result};
-use crate::stages::common::say;
+use crate::io::work::WorkDir;
+use crate::progress::say;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
 pub struct Options {
     pub dataset: PathBuf,
-    pub work: PathBuf,
+    pub work: WorkDir,
     /// "fast" or "paper", for every stage.
     pub preset: String,
     /// Run every step even when its outputs are up to date.
@@ -110,7 +111,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     }
     let dataset = crate::io::dataset::Dataset::read(&opts.dataset)?;
     crate::eval::relight::check_dataset(&dataset)?;
-    let record_path = opts.work.join("run.json");
+    let record_path = opts.work.run_record();
     // Outputs of the single-stage commands (no run.json) count as they are; a recorded other
     // preset does not.
     let other_preset = std::fs::read(&record_path)
@@ -127,7 +128,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             ),
         );
     }
-    std::fs::create_dir_all(&opts.work).map_err(|e| Error::io(&opts.work, e))?;
+    let root = opts.work.root();
+    std::fs::create_dir_all(root).map_err(|e| Error::io(root, e))?;
     let w = &opts.work;
     let ds = dataset.file.clone();
     let invert_settings = || {
@@ -185,7 +187,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
 
     step(
         "stage 1: reconstruct",
-        vec![w.join("scene.glb"), w.join("report.json")],
+        vec![w.scene(), w.reconstruct().report()],
         vec![ds.clone()],
         &mut |resume| {
             use crate::stages::reconstruct::{run, train::Settings};
@@ -196,7 +198,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             };
             run::reconstruct(&run::Options {
                 dataset: ds.clone(),
-                out: w.clone(),
+                work: w.clone(),
                 settings,
                 oracle_poses: false,
                 resume,
@@ -209,8 +211,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     )?;
     step(
         "stage 2: refine",
-        vec![w.join("refined.glb"), w.join("refine").join("report.json")],
-        vec![ds.clone(), w.join("scene.glb")],
+        vec![w.refined(), w.refine().report()],
+        vec![ds.clone(), w.scene()],
         &mut |resume| {
             use crate::stages::refine::{self, Settings};
             let settings = if paper {
@@ -232,11 +234,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     )?;
     step(
         "stage 3: invert",
-        vec![
-            w.join("relightable.glb"),
-            w.join("invert").join("report.json"),
-        ],
-        vec![ds.clone(), w.join("refined.glb")],
+        vec![w.relightable(), w.invert().report()],
+        vec![ds.clone(), w.refined()],
         &mut |resume| {
             use crate::stages::invert;
             let settings = invert_settings();
@@ -255,8 +254,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     )?;
     step(
         "evaluate",
-        vec![w.join("eval").join("eval.json")],
-        vec![ds.clone(), w.join("scene.glb"), w.join("relightable.glb")],
+        vec![w.eval_json()],
+        vec![ds.clone(), w.scene(), w.relightable()],
         &mut |_| {
             crate::eval::relight::evaluate(&crate::eval::relight::Options {
                 dataset: ds.clone(),

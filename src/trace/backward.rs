@@ -31,8 +31,8 @@ use super::placed::Placed;
 use super::record::{RecordGrad, WeightedHit};
 use crate::kernel::composite::{Back, Front};
 use crate::kernel::{quat_grad, MAX_OPACITY};
+use crate::scene::transform::TransformGrad;
 use crate::scene::Surfels;
-use crate::splat::TransformGrad;
 use glam::{Mat3, Quat, Vec3};
 use rayon::prelude::*;
 
@@ -331,7 +331,7 @@ impl Placed<'_> {
             // The normal as composited: turned to face the ray (the sign is held fixed).
             let sign = if den > 0.0 { -1.0 } else { 1.0 };
             let x = o + h.t * d;
-            let m = crate::shade::brdf::Material {
+            let m = crate::scene::Material {
                 base_color: s.base_color[i],
                 metallic: s.metallic[i],
                 roughness: s.roughness[i],

@@ -1,7 +1,7 @@
 //! What compositing along a ray yields (eq. surface-record).
 
+use crate::scene::Material;
 use crate::scene::Surfels;
-use crate::shade::brdf::Material;
 
 /// Front-to-back composite of the hits along one ray (eq. surface-record). The fields are the
 /// weighted sums Σ w_j z_j with `w_j = α_j Π_{k<j}(1 − α_k)`, i.e. the numerators of the paper's

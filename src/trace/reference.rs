@@ -46,7 +46,7 @@ impl RefComponent {
         self.position.is_empty()
     }
 
-    /// The placement's left increment `x ↦ exp([ω]×) R x + t + δ` (as `splat::perturb`).
+    /// The placement's left increment `x ↦ exp([ω]×) R x + t + δ` (as `scene::transform::perturb`).
     pub fn perturb(&mut self, delta: [f64; 3], omega: [f64; 3]) {
         let q = DQuat::from_scaled_axis(DVec3::from_array(omega)) * quat(self.placement_rotation);
         self.placement_rotation = q.normalize().to_array();

@@ -2,8 +2,8 @@
 
 use super::placed::Placed;
 use super::surfel::{surfel_bounds, HitSurfel};
+use crate::scene::Material;
 use crate::scene::{Rigid, Scene, State, Surfels};
-use crate::shade::brdf::Material;
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::{builder::build_cwbvh, CwBvh};
 use obvhs::BvhBuildParams;

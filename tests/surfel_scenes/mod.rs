@@ -4,8 +4,8 @@
 
 use glam::{Quat, Vec3};
 use lightfuse::scene::synthetic::SplitMix;
+use lightfuse::scene::Material;
 use lightfuse::scene::{Camera, Component, Environment, Rigid, Scene, Surfels};
-use lightfuse::shade::Material;
 
 /// Fibonacci-sphere surfels of radius `r` about `c`: radial normals, σ = the mean spacing, so
 /// every point is covered by many discs and the sphere is opaque.

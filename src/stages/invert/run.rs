@@ -10,17 +10,17 @@ use crate::eval::lighting::{
     MaterialFigures,
 };
 use crate::eval::metrics::{psnr_hdr, psnr_srgb};
+use crate::io::dataset::split;
 use crate::io::dataset::{Dataset, Observation};
+use crate::io::work::{read_stage_scene, WorkDir};
 use crate::io::AtomicFiles;
+use crate::progress::{say, Progress};
 use crate::scene::{EnvRef, Scene, Surfels};
 use crate::shade::envmap::EnvMap;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
 use crate::stages::common::{
-    check_resumed_settings, read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog,
-    StageLoop,
+    check_resumed_settings, read_checkpoint, resume_or_start, Resumable, StageLog, StageLoop,
 };
-use crate::stages::reconstruct::run::split;
-use crate::stages::refine::run::read_stage_scene;
 use crate::trace::TraceScene;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -35,7 +35,7 @@ const LOG_EVERY: u32 = 10;
 pub struct Options {
     pub dataset: PathBuf,
     /// The work folder: stage 2's `refined.glb` is read from it unless `scene` says otherwise.
-    pub work: PathBuf,
+    pub work: WorkDir,
     pub scene: Option<PathBuf>,
     pub settings: Settings,
     /// Evaluation: samples per pixel, and every `eval_stride`-th pixel in x and y.
@@ -154,11 +154,11 @@ fn scene_path(opts: &Options) -> Result<PathBuf> {
     if let Some(p) = &opts.scene {
         return Ok(p.clone());
     }
-    let refined = opts.work.join("refined.glb");
+    let refined = opts.work.refined();
     if refined.is_file() {
         return Ok(refined);
     }
-    let stage1 = opts.work.join("scene.glb");
+    let stage1 = opts.work.scene();
     if stage1.is_file() {
         eprintln!(
             "warning: {} is missing (stage 2 has not run): inverting stage 1's {} instead; its geometry was fitted for splatting, not for ray tracing",
@@ -259,8 +259,8 @@ pub fn invert(opts: &Options) -> Result<Report> {
         &dataset,
         "run `lightfuse reconstruct` and `lightfuse refine` first (or pass --scene)",
     )?;
-    let out_dir = opts.work.join("invert");
-    std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
+    let stage_files = opts.work.invert();
+    std::fs::create_dir_all(&stage_files.dir).map_err(|e| Error::io(&stage_files.dir, e))?;
 
     say(opts.quiet, "reading the training captures");
     let train_states = dataset.train_states();
@@ -292,8 +292,8 @@ pub fn invert(opts: &Options) -> Result<Report> {
     }
 
     let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
-    let ckpt = out_dir.join("checkpoint.json");
-    let log_path = out_dir.join("log.jsonl");
+    let ckpt = stage_files.checkpoint();
+    let log_path = stage_files.log();
     let (mut c, resumed) = resume_or_start(
         &ckpt,
         opts.resume,
@@ -365,8 +365,8 @@ pub fn invert(opts: &Options) -> Result<Report> {
             rotation_deg: 0.0,
         });
     }
-    crate::io::write_scene(&out, &opts.work.join("relightable.glb"))?;
-    crate::io::write_scene(&out, &opts.work.join("relightable.usda"))?;
+    crate::io::write_scene(&out, &opts.work.relightable())?;
+    crate::io::write_scene(&out, &opts.work.relightable_usda())?;
 
     say(
         opts.quiet,
@@ -399,7 +399,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
     )?;
     let mut files = AtomicFiles::new();
     files.write(
-        &out_dir.join("report.json"),
+        &stage_files.report(),
         &serde_json::to_vec_pretty(&report).expect("report serialises"),
     )?;
     files.commit()?;

@@ -28,23 +28,22 @@ use crate::eval::pose::pose_error;
 use crate::eval::report::{
     covered_psnr_srgb, depth_errors, median, save_comparison, ObjectPoseError,
 };
-use crate::io::dataset::{Dataset, Observation};
+use crate::io::dataset::{split, Dataset, Observation, HOLDOUT};
+use crate::io::work::{stage1_view_name, WorkDir};
 use crate::io::AtomicFiles;
+use crate::progress::{say, Progress};
 use crate::scene::{Component, Rigid, Scene, State};
 use crate::stages::common::{
-    check_resumed_settings, read_checkpoint, resume_or_start, say, Progress, StageLog, StageLoop,
+    check_resumed_settings, read_checkpoint, resume_or_start, StageLog, StageLoop,
 };
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Views with index ≡ 0 (mod HOLDOUT) are withheld from training.
-pub const HOLDOUT: usize = 8;
-
 pub struct Options {
     pub dataset: PathBuf,
-    pub out: PathBuf,
+    pub work: WorkDir,
     pub settings: Settings,
     pub oracle_poses: bool,
     pub resume: bool,
@@ -119,13 +118,11 @@ pub struct PoseSteps {
 
 impl PoseSteps {
     pub const FORMAT: &'static str = "lightfuse-stage1-poses/3";
-    pub const FILE: &'static str = "poses.json";
 
-    /// The record in `out`, if there is one of `states` x `objects` poses (a record of another
+    /// The record in `work`, if there is one of `states` x `objects` poses (a record of another
     /// dataset or an older format counts as none: it only adds figures to the report).
-    fn read(out: &Path, states: usize, objects: usize) -> Option<PoseSteps> {
-        let p: PoseSteps =
-            serde_json::from_slice(&std::fs::read(out.join(Self::FILE)).ok()?).ok()?;
+    fn read(work: &WorkDir, states: usize, objects: usize) -> Option<PoseSteps> {
+        let p: PoseSteps = serde_json::from_slice(&std::fs::read(work.poses()).ok()?).ok()?;
         let fits = |lens: Vec<usize>| lens.len() == states && lens.iter().all(|&l| l == objects);
         (p.format == Self::FORMAT
             && fits(p.registered.iter().map(Vec::len).collect())
@@ -134,23 +131,6 @@ impl PoseSteps {
             && fits(p.turned.iter().map(Vec::len).collect()))
         .then_some(p)
     }
-}
-
-/// Splits the observations of each training state into (training, held-out): views with index
-/// ≡ 0 (mod [`HOLDOUT`]) are held out.
-pub fn split(obs: Vec<Vec<Observation>>) -> (Vec<Vec<Observation>>, Vec<Vec<Observation>>) {
-    let mut train = Vec::new();
-    let mut held = Vec::new();
-    for state in obs {
-        let (h, t): (Vec<_>, Vec<_>) = state.into_iter().partition(|o| o.view % HOLDOUT == 0);
-        train.push(t);
-        held.push(h);
-    }
-    (train, held)
-}
-
-fn checkpoint_path(out: &Path) -> PathBuf {
-    out.join("checkpoint.json")
 }
 
 /// The scene the model stands for: components and one state per training state.
@@ -380,7 +360,7 @@ fn initialise(
                 ),
             );
         crate::stages::common::write_checkpoint(
-            &opts.out.join(PoseSteps::FILE),
+            &opts.work.poses(),
             &PoseSteps {
                 format: PoseSteps::FORMAT.into(),
                 registered: initial,
@@ -424,7 +404,7 @@ fn initialise(
     Ok(Trainer::new(opts.settings.clone(), model))
 }
 
-/// Stage 1 from the dataset to `scene.glb` and `report.json` in `opts.out`.
+/// Stage 1 from the dataset to `scene.glb` and `report.json` in `opts.work`.
 pub fn reconstruct(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
     let dataset = Dataset::read(&opts.dataset)?;
@@ -443,7 +423,8 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
             ));
         }
     }
-    std::fs::create_dir_all(&opts.out).map_err(|e| Error::io(&opts.out, e))?;
+    let stage_files = opts.work.reconstruct();
+    std::fs::create_dir_all(&stage_files.dir).map_err(|e| Error::io(&stage_files.dir, e))?;
     let objects: Vec<init::ObjectRef> = dataset
         .objects
         .iter()
@@ -454,7 +435,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
         .collect();
 
     let (mut trainer, _) = resume_or_start(
-        &checkpoint_path(&opts.out),
+        &stage_files.checkpoint(),
         opts.resume,
         opts.quiet,
         |path| read_resumable(path, &opts.settings, train.len(), objects.len()),
@@ -470,14 +451,14 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     let mut bar =
         Progress::new(opts.quiet, total as u64, "training").plain_every(plain_every as u64);
     // A fresh run in a used directory appends too (as a resumed one does).
-    let mut log = StageLog::append(&opts.out.join("log.jsonl"))?;
+    let mut log = StageLog::append(&stage_files.log())?;
     let completion_at = total / 3;
     bar.start_at(trainer.iteration as u64);
     StageLoop {
         total,
         log_every: 50,
         checkpoint_every: 500,
-        checkpoint: &checkpoint_path(&opts.out),
+        checkpoint: &stage_files.checkpoint(),
         log: &mut log,
         bar: &bar,
     }
@@ -535,7 +516,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     );
 
     let scene = scene_of(&trainer.model, &dataset, &train_states);
-    crate::io::write_scene(&scene, &opts.out.join("scene.glb"))?;
+    crate::io::write_scene(&scene, &opts.work.scene())?;
     let report = evaluate(
         &trainer.model,
         &dataset,
@@ -552,7 +533,7 @@ pub fn reconstruct(opts: &Options) -> Result<Report> {
     };
     let mut files = AtomicFiles::new();
     files.write(
-        &opts.out.join("report.json"),
+        &opts.work.reconstruct().report(),
         &serde_json::to_vec_pretty(&report).expect("report serialises"),
     )?;
     files.commit()?;
@@ -614,14 +595,14 @@ fn evaluate(
             }
             let psnr = covered_psnr_srgb(&img.color, &o.rgb, &o.depth);
             psnrs.push(psnr);
-            let name = format!("heldout/{state}_{:03}.png", o.view);
+            let name = stage1_view_name(true, state, o.view);
             save_comparison(
                 &img.color,
                 &o.rgb,
                 &o.depth,
                 o.camera.w,
                 o.camera.h,
-                &opts.out.join(&name),
+                &opts.work.root().join(&name),
             )?;
             depth_err.extend(&view_depth);
             heldout.push(HeldOutView {
@@ -640,7 +621,7 @@ fn evaluate(
         for o in views {
             let img = render_state(model, j, &o.camera);
             train_psnrs.push(covered_psnr_srgb(&img.color, &o.rgb, &o.depth));
-            let path = opts.out.join(format!("train/{state}_{:03}.png", o.view));
+            let path = opts.work.stage1_view(false, state, o.view);
             save_comparison(&img.color, &o.rgb, &o.depth, o.camera.w, o.camera.h, &path)?;
         }
     }
@@ -664,7 +645,7 @@ fn evaluate(
     // Pose errors against the ground truth (evaluation only), forgiving declared symmetries;
     // also of the poses before training, when step 2 recorded them (not with oracle poses).
     let steps = (!opts.oracle_poses)
-        .then(|| PoseSteps::read(&opts.out, train_states.len(), dataset.objects.len()))
+        .then(|| PoseSteps::read(&opts.work, train_states.len(), dataset.objects.len()))
         .flatten();
     let mut pose_errors = Vec::new();
     let ref_k = train_states[0];
@@ -761,7 +742,7 @@ mod tests {
     #[test]
     fn a_checkpoint_resumes_only_on_the_settings_states_and_objects_it_was_made_of() {
         let dir = tempfile::tempdir().expect("a temporary directory");
-        let path = checkpoint_path(dir.path());
+        let path = WorkDir::new(dir.path()).reconstruct().checkpoint();
         // Two training states, one object.
         let model = Model::new(
             [component(0), component(1)]

@@ -5,7 +5,7 @@
 //!
 //! Parameters are kept raw, as 2DGS optimises them: centres, raw quaternions, log scales,
 //! logit opacities and SH coefficients; a pose update is an increment (δ, ω) applied on the left,
-//! turning about the object's centre ([`crate::splat::perturb_about`]), and reset to zero, so
+//! turning about the object's centre ([`crate::scene::transform::perturb_about`]), and reset to zero, so
 //! Adam sees the pose's tangent space.
 //!
 //! Losses per view: L_RGB = 0.8 L1 + 0.2 D-SSIM on the capture's colour where its depth is
@@ -19,6 +19,7 @@
 use crate::io::dataset::Observation;
 use crate::optim::{self, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
+use crate::scene::transform;
 use crate::scene::{Component, Rigid, Surfels};
 use crate::splat::{self, ImageGrad, Placement};
 use crate::stages::common::Resumable;
@@ -737,7 +738,7 @@ impl Trainer {
         }
         // Object poses of non-reference states (the reference state defines the object frame),
         // each turning about the object's centre (its surfels' mean, placed), so that a rotation
-        // step does not also move it ([`splat::perturb_about`]).
+        // step does not also move it ([`transform::perturb_about`]).
         if moves_poses {
             let transforms = geometric.as_ref().unwrap_or(&grads.transforms);
             for (o, tg) in transforms.iter().skip(1).enumerate() {
@@ -750,7 +751,7 @@ impl Trainer {
                 let gr = self.adam.group_index(&format!("pose{j}.{o}.r")).unwrap();
                 self.adam.step(gt, pt, &tg.translation);
                 self.adam.step(gr, pr, &tg.rotation);
-                self.model.poses[j][o] = splat::perturb_about(
+                self.model.poses[j][o] = transform::perturb_about(
                     &pose,
                     [pt[0], pt[1], pt[2]],
                     [pr[0], pr[1], pr[2]],

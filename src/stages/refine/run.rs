@@ -4,14 +4,14 @@
 use super::train::{Refiner, Settings, TrainState};
 use crate::error::{Error, Result};
 use crate::eval::geometry::{tally_state, GeometryFigures, GeometryTally, LeakOptions};
-use crate::io::dataset::{Dataset, Observation};
+use crate::io::dataset::{split, Dataset, Observation};
+use crate::io::work::{read_stage_scene, WorkDir};
 use crate::io::AtomicFiles;
-use crate::scene::{Scene, BACKGROUND};
+use crate::progress::{say, Progress};
+use crate::scene::Scene;
 use crate::stages::common::{
-    check_resumed_settings, read_checkpoint, resume_or_start, say, Progress, Resumable, StageLog,
-    StageLoop,
+    check_resumed_settings, read_checkpoint, resume_or_start, Resumable, StageLog, StageLoop,
 };
-use crate::stages::reconstruct::run::split;
 use crate::trace::TraceScene;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -25,7 +25,7 @@ const LOG_EVERY: u32 = 25;
 pub struct Options {
     pub dataset: PathBuf,
     /// The work folder: stage 1's `scene.glb` is read from it unless `scene` says otherwise.
-    pub work: PathBuf,
+    pub work: WorkDir,
     pub scene: Option<PathBuf>,
     pub settings: Settings,
     pub leaks: LeakOptions,
@@ -66,56 +66,6 @@ pub struct Report {
     pub states: Vec<StateFigures>,
 }
 
-/// An earlier stage's scene, checked against the dataset: the same objects (names and mask ids)
-/// and a state for every training state. `missing` says how to make it when the file is absent.
-pub(crate) fn read_stage_scene(path: &Path, dataset: &Dataset, missing: &str) -> Result<Scene> {
-    if !path.is_file() {
-        return Err(Error::invalid(
-            path,
-            "scene",
-            format!("expected an earlier stage's scene here: {missing}"),
-        ));
-    }
-    let scene = crate::io::read_scene(path)?;
-    if scene.components.first().map(|c| c.name.as_str()) != Some(BACKGROUND) {
-        return Err(Error::invalid(
-            path,
-            "components[0]",
-            format!("expected the {BACKGROUND:?} component first, as stage 1 writes it"),
-        ));
-    }
-    let objects: Vec<(&str, u32)> = scene.components[1..]
-        .iter()
-        .map(|c| (c.name.as_str(), c.id))
-        .collect();
-    let want: Vec<(&str, u32)> = dataset
-        .objects
-        .iter()
-        .map(|o| (o.name.as_str(), o.id))
-        .collect();
-    if objects != want {
-        return Err(Error::invalid(
-            path,
-            "components",
-            format!(
-                "expected the dataset's objects {want:?} (name, mask id) in its order, found {objects:?}; was this scene made from {}?",
-                dataset.file.display()
-            ),
-        ));
-    }
-    for k in dataset.train_states() {
-        let name = &dataset.states[k].name;
-        if scene.state_index(name).is_none() {
-            return Err(Error::invalid(
-                path,
-                "states",
-                format!("expected a state named {name:?} (a training state of the dataset)"),
-            ));
-        }
-    }
-    Ok(scene)
-}
-
 fn extent(scene: &Scene) -> f32 {
     scene
         .states
@@ -149,10 +99,6 @@ fn measure(
         all.merge(t);
     }
     (all.figures(), per)
-}
-
-fn checkpoint_path(dir: &Path) -> PathBuf {
-    dir.join("checkpoint.json")
 }
 
 /// What a resumed run needs besides the scene: the refiner, and the figures measured before
@@ -194,17 +140,14 @@ fn read_resumable(path: &Path, settings: &Settings) -> Result<Checkpoint> {
 pub fn refine(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
     let dataset = Dataset::read(&opts.dataset)?;
-    let scene_path = opts
-        .scene
-        .clone()
-        .unwrap_or_else(|| opts.work.join("scene.glb"));
+    let scene_path = opts.scene.clone().unwrap_or_else(|| opts.work.scene());
     let scene = read_stage_scene(
         &scene_path,
         &dataset,
         "run `lightfuse reconstruct <dataset> -o <work>` first (or pass --scene)",
     )?;
-    let out_dir = opts.work.join("refine");
-    std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
+    let stage_files = opts.work.refine();
+    std::fs::create_dir_all(&stage_files.dir).map_err(|e| Error::io(&stage_files.dir, e))?;
 
     say(opts.quiet, "reading the training captures");
     let train_states = dataset.train_states();
@@ -249,8 +192,8 @@ pub fn refine(opts: &Options) -> Result<Report> {
         ));
     }
 
-    let ckpt = checkpoint_path(&out_dir);
-    let log_path = out_dir.join("log.jsonl");
+    let ckpt = stage_files.checkpoint();
+    let log_path = stage_files.log();
     let (mut c, resumed) = resume_or_start(
         &ckpt,
         opts.resume,
@@ -299,7 +242,7 @@ pub fn refine(opts: &Options) -> Result<Report> {
 
     let mut refined = scene.clone();
     refined.components = c.refiner.scene_components();
-    let refined_path = opts.work.join("refined.glb");
+    let refined_path = opts.work.refined();
     crate::io::write_scene(&refined, &refined_path)?;
     say(
         opts.quiet,
@@ -333,7 +276,7 @@ pub fn refine(opts: &Options) -> Result<Report> {
     };
     let mut files = AtomicFiles::new();
     files.write(
-        &out_dir.join("report.json"),
+        &stage_files.report(),
         &serde_json::to_vec_pretty(&report).expect("report serialises"),
     )?;
     files.commit()?;
