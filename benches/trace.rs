@@ -184,7 +184,7 @@ fn room(n: usize) -> Scene {
     scene
 }
 
-/// A 640×480 camera near the front wall looking into the room (DESIGN §2 conventions).
+/// A 640×480 camera near the front wall looking into the room (docs/design.md §2).
 fn camera() -> Camera {
     camera_of(640, 480)
 }
@@ -418,7 +418,8 @@ fn render(c: &mut Criterion) {
 fn path_replay(c: &mut Criterion) {
     use lightfuse::io::dataset::Observation;
     use lightfuse::stages::invert::cache::PrimaryCache;
-    use lightfuse::stages::invert::train::{Passes, TrainState};
+    use lightfuse::stages::invert::cache::TrainState;
+    use lightfuse::stages::invert::train::Passes;
     let scene = room(200_000);
     let traced = TraceScene::new(&scene);
     let placed = traced.place_state(&scene.states[0]);

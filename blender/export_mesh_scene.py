@@ -8,7 +8,7 @@
   fresh non-overlapping UV map, ``--bake-res`` pixels).  Metallic and roughness are constant per
   material (``metallicFactor``, ``roughnessFactor``).
 * Axes: Blender's glTF exporter converts Blender Z-up to glTF +Y up, i.e. (x, y, z) -> (x, z, -y),
-  the LightFuse convention (DESIGN.md §2).  Node transforms place the meshes at the chosen state
+  the LightFuse convention (docs/design.md §2).  Node transforms place the meshes at the chosen state
   (default: the reference state0), so node-world positions are LightFuse world positions.
 
 Example::

@@ -1,6 +1,6 @@
 """Shared code of the LightFuse Blender scripts (bpy used as a Python module).
 
-Conventions (``DESIGN.md`` §2):
+Conventions (``docs/design.md`` §2):
 
 * World: right-handed, +Y up, metres.  A Blender point (x, y, z) is (x, z, -y) in LightFuse;
   ``C`` below is that change of basis, and a Blender 4x4 transform ``M`` becomes

@@ -1,8 +1,7 @@
 //! LightFuse: relightable, rearrangeable scenes of 2D Gaussian surfels with physically based
-//! materials, reconstructed from multi-state captures. See `DESIGN.md` (shared) and
+//! materials, reconstructed from multi-state captures. See `docs/design.md` and
 //! `docs/formats.md` for the data flow, the conventions and the file formats.
 
-pub mod cli;
 pub mod error;
 pub mod eval;
 pub mod io;

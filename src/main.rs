@@ -1,6 +1,8 @@
+mod cli;
+
 fn main() {
     keep_freed_memory();
-    std::process::exit(lightfuse::cli::main());
+    std::process::exit(cli::main());
 }
 
 /// Lets glibc's malloc keep freed memory for reuse instead of handing it back to the kernel.

@@ -29,9 +29,8 @@ use lightfuse::io::dataset::Observation;
 use lightfuse::scene::{Environment, Rigid, Scene, Surfels};
 use lightfuse::shade::envmap::{uv_to_direction, EnvMap};
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
-use lightfuse::stages::invert::train::{
-    initial_environment, Inverter, Settings, SppSchedule, TrainState,
-};
+use lightfuse::stages::invert::cache::TrainState;
+use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings, SppSchedule};
 use lightfuse::trace::TraceScene;
 
 mod surfel_scenes;

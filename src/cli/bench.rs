@@ -4,14 +4,41 @@
 //! prints both times, their ratio and the PSNR between the two renders.
 
 use super::{BenchArgs, Cli};
-use crate::error::{Error, Result};
+use lightfuse::error::{Error, Result};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-fn repo_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+/// The checkout whose `blender/` toolkit renders the Cycles side: `--toolkit`'s parent when
+/// given, else the first folder holding `blender/render_layout.py` among the executable's
+/// ancestors (`target/release/lightfuse` sits in the checkout it was built from) and the
+/// current folder. Found at run time, not compiled in, so a moved or installed binary works.
+fn checkout(toolkit: Option<&Path>) -> Result<PathBuf> {
+    const SCRIPT: &str = "blender/render_layout.py";
+    if let Some(t) = toolkit {
+        let root = t.parent().unwrap_or(Path::new(".")).to_path_buf();
+        if !root.join(SCRIPT).is_file() {
+            return Err(Error::invalid(
+                t,
+                "--toolkit",
+                "expected LightFuse's blender/ folder (with render_layout.py)",
+            ));
+        }
+        return Ok(root);
+    }
+    let exe = std::env::current_exe().ok();
+    let cwd = std::env::current_dir().ok();
+    exe.iter()
+        .flat_map(|e| e.ancestors().skip(1))
+        .chain(cwd.as_deref())
+        .find(|d| d.join(SCRIPT).is_file())
+        .map(Path::to_path_buf)
+        .ok_or_else(|| {
+            Error::Usage(format!(
+                "bench: cannot find LightFuse's {SCRIPT} beside the binary or here; give its folder with --toolkit DIR/blender"
+            ))
+        })
 }
 
 fn run_timed(what: &str, cmd: &mut Command) -> Result<f64> {
@@ -44,7 +71,7 @@ pub fn run(cli: &Cli, a: &BenchArgs) -> Result<()> {
     } else {
         a.dataset.clone()
     };
-    let dataset = crate::io::dataset::Dataset::read(&dataset_json)?;
+    let dataset = lightfuse::io::dataset::Dataset::read(&dataset_json)?;
     let k = dataset
         .states
         .iter()
@@ -76,11 +103,12 @@ pub fn run(cli: &Cli, a: &BenchArgs) -> Result<()> {
             "expected the dataset's Blender scene (written by blender/generate.py)",
         ));
     }
+    let repo = checkout(a.toolkit.as_deref())?;
     let python = a
         .python
         .clone()
-        .unwrap_or_else(|| repo_dir().join(".venv/bin/python"));
-    let blender = repo_dir().join("blender");
+        .unwrap_or_else(|| repo.join(".venv/bin/python"));
+    let blender = repo.join("blender");
     let work = tempfile::Builder::new()
         .prefix("lightfuse-bench")
         .tempdir()

@@ -1,8 +1,8 @@
 //! `lightfuse info`: what a scene holds, as text or JSON.
 
 use super::{Cli, InfoArgs};
-use crate::error::Result;
-use crate::scene::Scene;
+use lightfuse::error::Result;
+use lightfuse::scene::Scene;
 use serde_json::json;
 
 pub fn summary(scene: &Scene) -> serde_json::Value {
@@ -52,7 +52,7 @@ pub fn summary(scene: &Scene) -> serde_json::Value {
 }
 
 pub fn run(cli: &Cli, a: &InfoArgs) -> Result<()> {
-    let scene = crate::io::read_scene(&a.scene)?;
+    let scene = lightfuse::io::read_scene(&a.scene)?;
     let s = summary(&scene);
     if cli.json {
         println!("{}", serde_json::to_string_pretty(&s).expect("JSON"));

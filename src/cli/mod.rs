@@ -5,9 +5,9 @@ mod bench;
 mod info;
 mod render;
 
-use crate::error::{Error, Result};
-use crate::io::work::WorkDir;
 use clap::{Parser, Subcommand};
+use lightfuse::error::{Error, Result};
+use lightfuse::io::work::WorkDir;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -304,7 +304,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u32,
     /// Pixel filter width (Blackman-Harris, as Cycles' default 1.5); 0 for a box over the pixel.
-    #[arg(long, default_value_t = crate::shade::estimator::DEFAULT_FILTER_WIDTH)]
+    #[arg(long, default_value_t = lightfuse::shade::estimator::DEFAULT_FILTER_WIDTH)]
     pub filter_width: f32,
     /// Output folder: NAME.exr (R,G,B,A,Z,N.X,N.Y,N.Z,albedo.R,albedo.G,albedo.B) and NAME.png
     /// per camera, NAME the frame's file stem.
@@ -340,9 +340,13 @@ pub struct BenchArgs {
     /// Environment file for Cycles (default: the dataset state's own).
     #[arg(long)]
     pub env: Option<PathBuf>,
-    /// Python with bpy (default: the project's .venv).
+    /// Python with bpy (default: the checkout's .venv).
     #[arg(long)]
     pub python: Option<PathBuf>,
+    /// LightFuse's `blender/` folder (default: found beside the binary, i.e. in the checkout
+    /// it was built in, or in the current folder).
+    #[arg(long)]
+    pub toolkit: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -468,12 +472,12 @@ fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let env = crate::io::exr::read_environment(&a.input, &name)?;
+    let env = lightfuse::io::exr::read_environment(&a.input, &name)?;
     let out = match a.size {
         Some((w, h)) => env.resample(w, h),
         None => env.clone(),
     };
-    crate::io::exr::write_environment(&out, &a.output)?;
+    lightfuse::io::exr::write_environment(&out, &a.output)?;
     let (e0, e1) = (env.integral(), out.integral());
     let report = serde_json::json!({
         "input": {"width": env.width, "height": env.height, "integral_rgb": e0},
@@ -497,7 +501,7 @@ fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {
 }
 
 fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
-    use crate::scene::{Edit, MaterialEdit};
+    use lightfuse::scene::{Edit, MaterialEdit};
     let materials = a
         .materials
         .iter()
@@ -508,9 +512,9 @@ fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
             "--env-rotation: expected a finite angle".into(),
         ));
     }
-    let mut scene = crate::io::read_scene(&a.scene)?;
+    let mut scene = lightfuse::io::read_scene(&a.scene)?;
     let layout = match &a.layout {
-        Some(p) => Some((crate::io::layout::read_layout(p)?, p.clone())),
+        Some(p) => Some((lightfuse::io::layout::read_layout(p)?, p.clone())),
         None => None,
     };
     let environment = match &a.env {
@@ -519,7 +523,7 @@ fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            let mut env = crate::io::exr::read_environment(p, &name)?;
+            let mut env = lightfuse::io::exr::read_environment(p, &name)?;
             env.check_latlong(p, "EXR data window")?;
             env.clamp_negative();
             Some((env, a.env_rotation))
@@ -536,7 +540,7 @@ fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
         },
         &a.scene,
     )?;
-    crate::io::write_scene(&scene, &a.output)?;
+    lightfuse::io::write_scene(&scene, &a.output)?;
     if !cli.quiet {
         eprintln!(
             "wrote {}: state {:?} added ({} states)",
@@ -549,9 +553,9 @@ fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
 }
 
 fn convert(cli: &Cli, a: &ConvertArgs) -> Result<()> {
-    let scene = crate::io::read_scene(&a.input)?;
-    let out_format = crate::io::SceneFormat::from_path(&a.output)?;
-    if out_format == crate::io::SceneFormat::Ply {
+    let scene = lightfuse::io::read_scene(&a.input)?;
+    let out_format = lightfuse::io::SceneFormat::from_path(&a.output)?;
+    if out_format == lightfuse::io::SceneFormat::Ply {
         let state = match &a.state {
             Some(name) => scene
                 .states
@@ -563,14 +567,14 @@ fn convert(cli: &Cli, a: &ConvertArgs) -> Result<()> {
                 })?,
             None => &scene.states[scene.reference_state],
         };
-        crate::io::ply::write_state(&scene, state, &a.output)?;
+        lightfuse::io::ply::write_state(&scene, state, &a.output)?;
     } else {
         if a.state.is_some() {
             return Err(Error::Usage(
                 "--state applies to .ply output only; other formats keep every state".into(),
             ));
         }
-        crate::io::write_scene(&scene, &a.output)?;
+        lightfuse::io::write_scene(&scene, &a.output)?;
     }
     if !cli.quiet && !cli.json {
         eprintln!(
@@ -584,7 +588,7 @@ fn convert(cli: &Cli, a: &ConvertArgs) -> Result<()> {
 }
 
 fn surfelize(cli: &Cli, a: &SurfelizeArgs) -> Result<()> {
-    use crate::scene::surfelize::{surfelize, ObjectSelection, SurfelizeOptions};
+    use lightfuse::scene::surfelize::{surfelize, ObjectSelection, SurfelizeOptions};
     let objects = match a.objects.as_slice() {
         [] => ObjectSelection::AllNamedRoots,
         [none] if none == "none" => ObjectSelection::None,
@@ -598,13 +602,13 @@ fn surfelize(cli: &Cli, a: &SurfelizeArgs) -> Result<()> {
         seed: a.seed,
     };
     // Check the output's format before the work, so a typo fails at once.
-    crate::io::SceneFormat::from_path(&a.output)?;
-    let mesh = crate::io::mesh::read_mesh_scene(&a.mesh)?;
+    lightfuse::io::SceneFormat::from_path(&a.output)?;
+    let mesh = lightfuse::io::mesh::read_mesh_scene(&a.mesh)?;
     let mut scene = surfelize(&mesh, &opts)?;
     if let Some(d) = &a.dataset {
         attach_dataset_states(&mut scene, d, a.env_size)?;
     }
-    crate::io::write_scene(&scene, &a.output)?;
+    lightfuse::io::write_scene(&scene, &a.output)?;
     if cli.json {
         println!("{}", info::summary(&scene));
     } else if !cli.quiet {
@@ -625,12 +629,12 @@ fn surfelize(cli: &Cli, a: &SurfelizeArgs) -> Result<()> {
 
 /// Replaces the scene's states by the dataset's, with ground-truth poses and environments.
 fn attach_dataset_states(
-    scene: &mut crate::scene::Scene,
+    scene: &mut lightfuse::scene::Scene,
     dataset: &std::path::Path,
     env_size: Option<(usize, usize)>,
 ) -> Result<()> {
-    use crate::scene::{EnvRef, Rigid, State};
-    let d = crate::io::dataset::Dataset::read(dataset)?;
+    use lightfuse::scene::{EnvRef, Rigid, State};
+    let d = lightfuse::io::dataset::Dataset::read(dataset)?;
     for c in &scene.components[1..] {
         if !d.objects.iter().any(|o| o.name == c.name) {
             return Err(Error::invalid(
@@ -657,7 +661,7 @@ fn attach_dataset_states(
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let mut env = crate::io::exr::read_environment(&path, &name)?;
+        let mut env = lightfuse::io::exr::read_environment(&path, &name)?;
         env.clamp_negative();
         if let Some((w, h)) = env_size {
             env = env.resample(w, h);
@@ -732,14 +736,14 @@ fn preset<T>(name: &str, fast: fn() -> T, paper: fn() -> T) -> Result<T> {
 }
 
 fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
-    use crate::stages::reconstruct::{run, train::Settings};
+    use lightfuse::stages::reconstruct::{run, train::Settings};
     let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
     if let Some(n) = a.iterations {
         settings.iterations = n;
     }
     settings.seed = a.seed;
     if let Some(r) = &a.refine_poses {
-        use crate::stages::reconstruct::train::PoseGradient;
+        use lightfuse::stages::reconstruct::train::PoseGradient;
         let (from, gradient) = match r.as_str() {
             "off" => (u32::MAX, settings.pose_gradient),
             "geometry" => (settings.iterations / 3, PoseGradient::Geometry),
@@ -794,7 +798,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
                 v.state, v.view, v.psnr_srgb, v.median_depth_error_m, v.image
             );
         }
-        let brief = |e: &crate::eval::pose::PoseError| {
+        let brief = |e: &lightfuse::eval::pose::PoseError| {
             format!(
                 "{:.2} deg, {:.2} cm",
                 e.rotation_deg,
@@ -833,7 +837,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
 }
 
 fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
-    use crate::stages::refine::{self, Settings, Switches};
+    use lightfuse::stages::refine::{self, Settings, Switches};
     let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
     if let Some(n) = a.iterations {
         settings.iterations = n;
@@ -890,7 +894,7 @@ fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
 }
 
 fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
-    use crate::stages::invert::{self, Settings, SppSchedule};
+    use lightfuse::stages::invert::{self, Settings, SppSchedule};
     let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
     if let Some(n) = a.iterations {
         settings.iterations = n;
@@ -903,8 +907,8 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
         ))
     })?;
     settings.estimator = match a.estimator.as_str() {
-        "full" => crate::shade::estimator::Strategy::Full,
-        "naive" => crate::shade::estimator::Strategy::Naive,
+        "full" => lightfuse::shade::estimator::Strategy::Full,
+        "naive" => lightfuse::shade::estimator::Strategy::Naive,
         other => {
             return Err(Error::Usage(format!(
                 "--estimator: expected \"full\" or \"naive\", found {other:?}"
@@ -950,7 +954,7 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
             report.iterations,
             report.seconds
         );
-        let split = |f: &crate::stages::invert::run::ImageFigures| {
+        let split = |f: &lightfuse::stages::invert::run::ImageFigures| {
             let db = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
             format!(
                 "surface {} / sky {}",
@@ -975,7 +979,7 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
 }
 
 fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
-    use crate::eval::relight;
+    use lightfuse::eval::relight;
     let work = WorkDir::new(&a.work);
     let report = relight::evaluate(&relight::Options {
         dataset: a.dataset.clone(),
@@ -984,7 +988,7 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         seed: a.seed,
         images: !a.no_images,
         denoise: !a.no_denoise,
-        selection: relight::Selection::parse(&a.rows, &a.tables)?,
+        selection: lightfuse::eval::tables::Selection::parse(&a.rows, &a.tables)?,
         quiet: cli.quiet || cli.json,
     })?;
     if cli.json {
@@ -999,14 +1003,14 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
             work.report_html().display(),
             report.seconds
         );
-        println!("{}", relight::markdown(&report));
+        println!("{}", lightfuse::eval::tables::markdown(&report));
     }
     Ok(())
 }
 
 /// `--loss` of `invert` and `run`.
-fn parse_loss(l: &str) -> Result<crate::stages::invert::train::Loss> {
-    crate::stages::invert::train::Loss::parse(l).ok_or_else(|| {
+fn parse_loss(l: &str) -> Result<lightfuse::stages::invert::train::Loss> {
+    lightfuse::stages::invert::train::Loss::parse(l).ok_or_else(|| {
         Error::Usage(format!(
             "--loss: expected \"l1\" or \"weighted-l2\", found {l:?}"
         ))
@@ -1014,7 +1018,7 @@ fn parse_loss(l: &str) -> Result<crate::stages::invert::train::Loss> {
 }
 
 fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
-    use crate::stages::pipeline;
+    use lightfuse::stages::pipeline;
     let work = WorkDir::new(&a.out);
     let steps = pipeline::run(&pipeline::Options {
         dataset: a.dataset.clone(),

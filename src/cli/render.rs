@@ -1,38 +1,38 @@
 //! `lightfuse render`: path-traced images of a scene in a state or layout, under a state's or a
 //! given environment, for a set of cameras (the one-bounce estimator of
-//! [`crate::shade::estimator`]).
+//! [`lightfuse::shade::estimator`]).
 //!
 //! Output, per camera, named after the frame's file stem (`state0/rgb/000.exr` → `000`; when two
 //! selected frames share a stem, the frame's path with `/` → `_`):
 //! - `<name>.exr`: float channels `R, G, B` (radiance, scene-linear Rec.709, the environment
-//!   included behind partial coverage), `A` (mean coverage), `Z` (planar depth, DESIGN §2; 0 = no
+//!   included behind partial coverage), `A` (mean coverage), `Z` (planar depth, docs/design.md §2; 0 = no
 //!   hit), `N.X, N.Y, N.Z` (unit world normal facing the camera), `albedo.R/G/B` (base colour);
 //!   the AOVs come from the record at the pixel centre;
 //! - `<name>.png`: an 8-bit sRGB preview of R, G, B (clamped to [0, 1], sRGB OETF).
 //!
 //! With `--denoise`, R, G, B are Open Image Denoise's estimate (HDR, guided by the albedo and
-//! normal AOVs, [`crate::shade::denoise::denoise_render`]); the AOVs are unchanged.
+//! normal AOVs, [`lightfuse::shade::denoise::denoise_render`]); the AOVs are unchanged.
 //!
 //! Frame k of the selection uses the Sobol streams `Sampler::new(y·w + x, seed + k)`.
 
 use super::{Cli, RenderArgs};
-use crate::error::{Error, Result};
-use crate::io::cameras::read_views;
-use crate::io::exr::Channels;
-use crate::scene::{Environment, Scene, State};
-use crate::shade::denoise::denoise_render;
-use crate::shade::estimator::{Estimator, PixelFilter};
-use crate::shade::render::{environment_image, render_image, Aovs, RenderedImage};
-use crate::shade::EnvMap;
-use crate::trace::TraceScene;
+use lightfuse::error::{Error, Result};
+use lightfuse::io::cameras::read_views;
+use lightfuse::io::exr::Channels;
+use lightfuse::scene::{Environment, Scene, State};
+use lightfuse::shade::denoise::denoise_render;
+use lightfuse::shade::estimator::{Estimator, PixelFilter};
+use lightfuse::shade::render::{environment_image, render_image, Aovs, RenderedImage};
+use lightfuse::shade::EnvMap;
+use lightfuse::trace::TraceScene;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
-    if a.spp == 0 || a.spp > crate::shade::sobol::MAX_SAMPLES {
+    if a.spp == 0 || a.spp > lightfuse::shade::sobol::MAX_SAMPLES {
         return Err(Error::Usage(format!(
             "--spp: expected 1 ..= {}, found {}",
-            crate::shade::sobol::MAX_SAMPLES,
+            lightfuse::shade::sobol::MAX_SAMPLES,
             a.spp
         )));
     }
@@ -48,9 +48,9 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
         ));
     }
     if a.denoise {
-        crate::shade::denoise::require("")?;
+        lightfuse::shade::denoise::require("")?;
     }
-    let scene = crate::io::read_scene(&a.scene)?;
+    let scene = lightfuse::io::read_scene(&a.scene)?;
     let state = select_state(&scene, a)?;
     if a.baked {
         return render_baked(cli, a, &scene, &state);
@@ -62,7 +62,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
     let trace = TraceScene::new(&scene);
     let placed = trace.place_state(&state);
     let map = EnvMap::new(&environment, rotation);
-    let eps = crate::shade::estimator::self_hit_epsilon(&scene, &state);
+    let eps = lightfuse::shade::estimator::self_hit_epsilon(&scene, &state);
     let estimator = Estimator::new(&placed, &map, eps);
     let filter = PixelFilter::new(a.filter_width);
 
@@ -123,7 +123,11 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
 
 /// Replaces the radiance by Open Image Denoise's estimate, guided by the image's own
 /// pixel-centre AOVs ([`denoise_render`], as `lightfuse evaluate` denoises).
-fn denoise(image: &mut RenderedImage, env: &EnvMap, camera: &crate::scene::Camera) -> Result<()> {
+fn denoise(
+    image: &mut RenderedImage,
+    env: &EnvMap,
+    camera: &lightfuse::scene::Camera,
+) -> Result<()> {
     let bg = environment_image(env, camera);
     image.radiance = denoise_render(
         &image.radiance,
@@ -156,7 +160,7 @@ fn select_state(scene: &Scene, a: &RenderArgs) -> Result<State> {
     match &a.layout {
         None => Ok(base),
         Some(path) => {
-            let layout = crate::io::layout::read_layout(path)?;
+            let layout = lightfuse::io::layout::read_layout(path)?;
             let name = path
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
@@ -180,7 +184,7 @@ fn select_environment<'s>(
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let mut env = crate::io::exr::read_environment(path, &name)?;
+        let mut env = lightfuse::io::exr::read_environment(path, &name)?;
         env.check_latlong(path, "EXR data window")?;
         env.clamp_negative();
         return Ok((
@@ -209,10 +213,10 @@ fn select_environment<'s>(
 fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Result<()> {
     let views = read_views(&a.cameras, a.frames.as_deref(), &state.name)?;
     let started = Instant::now();
-    let placements = crate::splat::placements(scene, state);
+    let placements = lightfuse::splat::placements(scene, state);
     let mut files = Vec::new();
     for view in &views {
-        let img = crate::splat::forward(&placements, &view.camera).image;
+        let img = lightfuse::splat::forward(&placements, &view.camera).image;
         // The splatted normal is the alpha-blended one: unit length where it is not zero.
         let normal = img
             .normal
@@ -273,7 +277,7 @@ fn srgb8(v: f32) -> u8 {
 fn write_view(image: &RenderedImage, out: &Path, name: &str) -> Result<[PathBuf; 2]> {
     let exr = out.join(format!("{name}.exr"));
     let png = out.join(format!("{name}.png"));
-    crate::io::exr::write_channels(&Channels::from_render(image), &exr)?;
+    lightfuse::io::exr::write_channels(&Channels::from_render(image), &exr)?;
     write_png(image, &png)?;
     Ok([exr, png])
 }
@@ -290,7 +294,7 @@ fn write_png(image: &RenderedImage, path: &Path) -> Result<()> {
             image::ExtendedColorType::Rgb8,
         )
         .map_err(|e| Error::io(path, std::io::Error::other(e)))?;
-    let mut files = crate::io::AtomicFiles::new();
+    let mut files = lightfuse::io::AtomicFiles::new();
     files.write(path, &bytes)?;
     files.commit()
 }

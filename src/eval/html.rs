@@ -10,7 +10,7 @@
 //! line chart is ~80 lines of text output, and the crates that draw it (plotters & co.) bring a
 //! font and raster stack this page does not need.
 
-use crate::eval::relight::{Report, RowFigures, ROWS};
+use crate::eval::tables::{Report, RowFigures, ROWS};
 use crate::scene::Environment;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

@@ -9,5 +9,6 @@ pub mod metrics;
 pub mod pose;
 pub mod relight;
 pub mod report;
+pub mod tables;
 
 pub use metrics::{depth_error, psnr, psnr_srgb, srgb_encode, ssim, ssim_srgb, DepthError};

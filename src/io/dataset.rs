@@ -1,4 +1,4 @@
-//! `lightfuse-dataset/1` (`dataset.json`, DESIGN §3): states, their ground-truth object poses and
+//! `lightfuse-dataset/1` (`dataset.json`, docs/formats.md): states, their ground-truth object poses and
 //! environments. Training reads only RGB, depth, normal, masks and cameras; what this module
 //! exposes of the ground truth is for evaluation and for oracle scenes that say so.
 
@@ -145,7 +145,7 @@ impl Dataset {
             return Err(Error::invalid(
                 &d.file,
                 "up",
-                format!("expected \"+Y\" (DESIGN §2), found {:?}", d.up),
+                format!("expected \"+Y\" (docs/design.md §2), found {:?}", d.up),
             ));
         }
         for (i, o) in d.objects.iter().enumerate() {

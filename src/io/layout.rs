@@ -1,5 +1,5 @@
 //! Layouts: `layout.json` (`lightfuse-layout/1`), or the named object nodes of a glTF or a
-//! LightFuse scene (DESIGN §3).
+//! LightFuse scene (docs/formats.md).
 
 use super::AtomicFiles;
 use crate::error::{Error, Result};

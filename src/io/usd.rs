@@ -1,4 +1,4 @@
-//! OpenUSD `.usda` (DESIGN §3 "Scene, USD"): write a scene and read it back bit for bit.
+//! OpenUSD `.usda` (docs/formats.md): write a scene and read it back bit for bit.
 //!
 //! # Layout
 //!
@@ -28,7 +28,7 @@
 //! |---|---|
 //! | μ | `point3f[] positions` (the float variant; `positionsh` is half precision) |
 //! | q (x, y, z, w) | `quatf[] orientations`, written as USD does: `(w, x, y, z)` |
-//! | (s_u, s_v) | `float3[] scales` = (s_u, s_v, 0). The surflet kernel is a Gaussian disc in the particle's local XY plane (σ = 1, zero off the plane), so X and Y scale the two in-plane axes (the first two columns of R(q), DESIGN §2) and Z, which scales nothing, is written 0 (flat, like the glTF file) and ignored when read. |
+//! | (s_u, s_v) | `float3[] scales` = (s_u, s_v, 0). The surflet kernel is a Gaussian disc in the particle's local XY plane (σ = 1, zero off the plane), so X and Y scale the two in-plane axes (the first two columns of R(q), docs/design.md §2) and Z, which scales nothing, is written 0 (flat, like the glTF file) and ignored when read. |
 //! | α | `float[] opacities` (linear, post-sigmoid) |
 //! | SH | `uniform int radiance:sphericalHarmonicsDegree` = L and `float3[] radiance:sphericalHarmonicsCoefficients`, (L + 1)² RGB triples per particle. USD groups them by particle, then by degree l, then by m = -l..l: exactly the KHR_gaussian_splatting / 3DGS order we store, with the same 0.5 DC bias (USD's fallback "DC signal of 0.5" is the zero coefficient), so they are copied unchanged. |
 //! | a, m, r | `color3f[] lightfuse:baseColors`, `float[] lightfuse:metallics`, `float[] lightfuse:roughnesses` |
@@ -41,7 +41,7 @@
 //!
 //! `DomeLight` (and `DomeLight_1` with `poleAxis` "scene" on this Y-up stage) maps latlong
 //! textures the OpenEXR way: the top row is +Y, the image centre looks at +Z and the quarter
-//! column at +X. LightFuse maps them as Cycles does after the axis change (DESIGN §2): the
+//! column at +X. LightFuse maps them as Cycles does after the axis change (docs/design.md §2): the
 //! centre looks at +X and the quarter column at −Z, i.e. our map is USD's turned by +90° about
 //! +Y. A state's `rotation_deg` θ is a Cycles Mapping node turning the *lookup* by θ about +Y,
 //! so the environment seen in the scene is turned by −θ. The DomeLight therefore gets

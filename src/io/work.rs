@@ -1,5 +1,5 @@
 //! The work folder: every file the stages, `lightfuse run` and `lightfuse evaluate` leave in it,
-//! named once. docs/design.md ("The work folder") lists them; docs/formats.md gives their bytes.
+//! named once. docs/design.md §1 lists them; docs/formats.md gives their bytes.
 //!
 //! ```text
 //! work/

@@ -1,4 +1,4 @@
-//! What splatting and tracing share (DESIGN §4): the surfel response of eq. gaussian-response
+//! What splatting and tracing share (docs/design.md §4): the surfel response of eq. gaussian-response
 //! with its cut-offs, the front-to-back compositing step of eq. surface-record and its adjoint,
 //! and the gradient through a normalised quaternion. One copy each, so that the rasteriser and
 //! the ray tracer agree on which hits exist and how they are weighted.

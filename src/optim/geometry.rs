@@ -2,7 +2,7 @@
 //! reconstruction-normal and reconstruction-objective).
 //!
 //! A pixel (x, y) with planar depth d back-projects to the camera-space point
-//! P = d · ((x + 0.5 − cx)/fx, −(y + 0.5 − cy)/fy, −1) (DESIGN §2: OpenGL camera, pixel centres
+//! P = d · ((x + 0.5 − cx)/fx, −(y + 0.5 − cy)/fy, −1) (docs/design.md §2: OpenGL camera, pixel centres
 //! at +0.5, planar depth). As in 2DGS, the depth normal of an interior pixel is the normalised
 //! cross product of the central differences of its four neighbours' points,
 //! n = normalize((P(x, y+1) − P(x, y−1)) × (P(x+1, y) − P(x−1, y))), which faces the camera,

@@ -1,4 +1,4 @@
-//! Optimisation building blocks for the three training stages (DESIGN §1, paper §"Training and
+//! Optimisation building blocks for the three training stages (docs/design.md §1; paper §"Training and
 //! Inference"): Adam over parameter groups with learning-rate schedules, and the image-space
 //! losses of eqs. reconstruction-objective, geometry-objective and training-objectives, each
 //! returning its value and its gradient with respect to the rendered buffers.

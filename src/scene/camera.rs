@@ -1,4 +1,4 @@
-//! Pinhole cameras (DESIGN §2): camera-to-world 4x4, OpenGL style (looks down −Z, +Y up),
+//! Pinhole cameras (docs/design.md §2): camera-to-world 4x4, OpenGL style (looks down −Z, +Y up),
 //! intrinsics in pixels, pixel centres at +0.5.
 
 use crate::error::{Error, Result};

@@ -1,4 +1,4 @@
-//! Environment maps: equirectangular lat-long float RGB (DESIGN §2), scene-linear Rec.709.
+//! Environment maps: equirectangular lat-long float RGB (docs/design.md §2), scene-linear Rec.709.
 
 /// A lat-long HDR environment. Row 0 is the top (+Y, the zenith); column 0 starts at the
 /// direction fixed by the mapping in `shade` (Cycles' convention after the axis change).

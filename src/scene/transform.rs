@@ -1,5 +1,5 @@
 //! Rigid transforms: how a state or a layout places an object relative to the reference state
-//! (DESIGN §2 "object frame").
+//! (docs/design.md §2, "object frame").
 
 use glam::{Mat3, Mat4, Quat, Vec3};
 

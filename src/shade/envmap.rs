@@ -1,7 +1,7 @@
 //! Lookups and importance sampling of a lat-long [`Environment`]: the E_k(ω) of the paper's
 //! path estimator (eq. path-estimator) and its next-event estimation.
 //!
-//! # The mapping: Cycles' World Environment Texture after the axis change (DESIGN §2)
+//! # The mapping: Cycles' World Environment Texture after the axis change (docs/design.md §2)
 //!
 //! Cycles (intern/cycles/kernel/camera/projection.h; the Environment Texture node calls it
 //! with the normalised lookup vector, svm/image.h):

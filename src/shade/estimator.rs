@@ -21,7 +21,7 @@
 //! where `(1 − α₂)` is the continuation's transmittance, the quantity the next-event sample's
 //! visibility also estimates; so the two MIS strategies estimate the same visibility-weighted
 //! integral and the combination stays unbiased. Every term is linear in the environment texels
-//! and, for a diffuse scene, in the base colours (DESIGN §5).
+//! and, for a diffuse scene, in the base colours (docs/design.md §5).
 //!
 //! **Self-intersection.** Surfels are overlapping discs tangent to the surface, and the
 //! composited position is a mean of hits on several of them, so a ray leaving it meets the
@@ -672,7 +672,7 @@ pub struct Pixel {
     pub rgb: [f32; 3],
     /// Mean composited alpha over the samples (coverage).
     pub alpha: f32,
-    /// Planar depth along the camera's viewing axis (DESIGN §2); 0 without a hit.
+    /// Planar depth along the camera's viewing axis (docs/design.md §2); 0 without a hit.
     pub depth: f32,
     /// Unit world normal facing the camera; 0 without a hit.
     pub normal: [f32; 3],

@@ -4,7 +4,7 @@
 //! - [`brdf`]: the metallic-roughness BRDF (Lambert + GGX, glTF's reference model) with
 //!   `eval_f` / `eval_f_cos`, `sample` from a cosine / GGX-VNDF mixture and its `pdf`;
 //! - [`envmap`]: lat-long environment lookups mapped exactly as Cycles maps a World
-//!   Environment Texture (after the axis change of DESIGN §2, with the state's rotation about
+//!   Environment Texture (after the axis change of docs/design.md §2, with the state's rotation about
 //!   +Y), and their importance sampling;
 //! - [`render`]: the estimator over every pixel of a camera, into an image's channels;
 //! - [`replay`]: path replay, a path sample's decisions and terms, and their adjoint (PRB);

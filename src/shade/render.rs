@@ -3,7 +3,7 @@
 //!
 //! What a pixel holds: radiance (scene-linear Rec.709, the environment included behind partial
 //! coverage) and the AOVs of the record at the pixel centre: mean coverage, planar depth
-//! (docs/design.md, "Conventions"; 0 = no hit), unit world normal facing the camera and base
+//! (docs/design.md §2; 0 = no hit), unit world normal facing the camera and base
 //! colour. Pixel (x, y) draws from the Sobol stream `Sampler::new(y·w + x, seed)`. How an image
 //! is stored (EXR channel names) is `io::exr`'s business, not the renderer's.
 
@@ -127,7 +127,7 @@ pub struct Primaries {
 pub struct Aovs {
     /// Mean coverage over the samples.
     pub alpha: Vec<f32>,
-    /// Planar depth (DESIGN §2).
+    /// Planar depth (docs/design.md §2).
     pub depth: Vec<f32>,
     /// Unit world normal facing the camera.
     pub normal: Vec<[f32; 3]>,

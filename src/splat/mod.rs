@@ -26,7 +26,7 @@
 //! `trace`).
 //!
 //! **Outputs** ([`SplatImage`]) per pixel: colour `Σ w c` (over black; `c` from SH, see
-//! [`sh`]), opacity `A = Σ w`, depth `Σ w z / A` (planar, 0 with no hit, as DESIGN §2 asks),
+//! [`sh`]), opacity `A = Σ w`, depth `Σ w z / A` (planar, 0 with no hit, as docs/design.md §2 asks),
 //! 2DGS's median depth (the depth of the last hit entered with transmittance above ½), and
 //! normal `Σ w n` (world space, each `n` turned to face the camera; *not* divided by `A` nor
 //! renormalised, as 2DGS renders it: the loss decides).

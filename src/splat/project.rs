@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 /// The camera as the rasteriser uses it. The ray through pixel coordinates (u, v) is
 /// `d(u, v) = d0 + u du + v dv` with `d · fwd = 1`, so the ray parameter of a hit is its planar
-/// depth (DESIGN §2), and `d` is affine in (u, v): every per-pixel dot product is too.
+/// depth (docs/design.md §2), and `d` is affine in (u, v): every per-pixel dot product is too.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct View {
     pub o: Vec3,

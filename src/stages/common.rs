@@ -1,4 +1,4 @@
-//! The loop skeleton the stages share (docs/design.md, "Stages"): the `log.jsonl` appender,
+//! The loop skeleton the stages share (docs/design.md §4): the `log.jsonl` appender,
 //! checkpoints written atomically and read back for `--resume`, and the training loop itself
 //! ([`StageLoop`], [`resume_or_start`]); progress is [`crate::progress`].
 
@@ -134,7 +134,7 @@ pub trait Resumable: Serialize {
     fn training_seconds(&mut self) -> &mut f64;
 }
 
-/// The loop every stage runs (DESIGN §4): steps until `total`, a `log.jsonl` line of the mean
+/// The loop every stage runs (docs/design.md §4): steps until `total`, a `log.jsonl` line of the mean
 /// losses every `log_every` iterations (and at the end), the progress bar's status at the same
 /// time, and the checkpoint every `checkpoint_every` iterations (and at the end). It keeps the
 /// state's training time ([`Resumable::training_seconds`]): what the state came with plus the

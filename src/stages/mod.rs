@@ -1,4 +1,4 @@
-//! The paper's stages, each a plain function of files (DESIGN §4).
+//! The paper's stages, each a plain function of files (docs/design.md §4).
 
 pub mod common;
 pub mod invert;

@@ -1,4 +1,4 @@
-//! `lightfuse run`: stages 1–3 and the evaluation in order, on one work folder (DESIGN §4).
+//! `lightfuse run`: stages 1–3 and the evaluation in order, on one work folder (docs/design.md §4).
 //!
 //! A step is skipped when its outputs exist and are newer than its inputs (the dataset's
 //! `dataset.json` and the previous step's output), unless `<work>/run.json` records that another
@@ -74,8 +74,8 @@ fn eval_settings_match(eval_json: &Path, denoise: bool) -> bool {
         .map(|d| d != "none");
     // Reports written before the field rendered everything.
     let complete = v.get("selection").is_none_or(|s| {
-        serde_json::from_value::<crate::eval::relight::Selection>(s.clone())
-            .is_ok_and(|s| s == crate::eval::relight::Selection::ALL)
+        serde_json::from_value::<crate::eval::tables::Selection>(s.clone())
+            .is_ok_and(|s| s == crate::eval::tables::Selection::ALL)
     });
     denoised == Some(denoise) && complete
 }
@@ -264,7 +264,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                 seed: 0,
                 images: true,
                 denoise: opts.denoise,
-                selection: crate::eval::relight::Selection::ALL,
+                selection: crate::eval::tables::Selection::ALL,
                 quiet: opts.quiet,
             })
             .map(|_| ())
@@ -321,10 +321,10 @@ mod tests {
         // Evaluation: the denoising setting, and every row and table rendered.
         write(serde_json::json!({"denoise": "Open Image Denoise"}));
         assert!(eval_settings_match(&f, true) && !eval_settings_match(&f, false));
-        let all = serde_json::to_value(crate::eval::relight::Selection::ALL).unwrap();
+        let all = serde_json::to_value(crate::eval::tables::Selection::ALL).unwrap();
         write(serde_json::json!({"denoise": "none", "selection": all}));
         assert!(eval_settings_match(&f, false));
-        let mut part = crate::eval::relight::Selection::ALL;
+        let mut part = crate::eval::tables::Selection::ALL;
         part.baked = false;
         write(serde_json::json!({"denoise": "none", "selection": part}));
         assert!(

@@ -3,7 +3,7 @@
 //! material along a ray.
 //!
 //! **Two levels.** [`TraceScene`] builds one BVH (an `obvhs` compressed wide BVH8) per component,
-//! in the component's own frame (the reference state's world frame, DESIGN §2), once.
+//! in the component's own frame (the reference state's world frame, docs/design.md §2), once.
 //! [`TraceScene::place`] takes a state's or a layout's rigid transforms and returns a [`Placed`]
 //! scene: the top level is the list of instances with their world bounds, so a rearrangement
 //! costs a few hundred nanoseconds and never touches a component's BVH. A ray is moved into

@@ -8,9 +8,31 @@ use super::scene::TraceScene;
 use super::surfel::hit4;
 use super::T_MIN;
 use crate::kernel::response;
-use crate::scene::Rigid;
+use crate::scene::{Rigid, State};
 use glam::{Mat3, Vec3};
 use obvhs_glam::UVec2;
+
+/// Placing is how a [`TraceScene`] becomes traceable: its constructor lives beside [`Placed`],
+/// so that the scene (BVHs in component frames) does not name the view that borrows it.
+impl TraceScene {
+    /// Places the components with one rigid transform each (component frame → world): the
+    /// top level only, no BVH is rebuilt.
+    ///
+    /// Panics unless there is exactly one transform per component (a validated [`State`] has).
+    pub fn place(&self, transforms: &[Rigid]) -> Placed<'_> {
+        assert_eq!(
+            transforms.len(),
+            self.blas.len(),
+            "TraceScene::place: expected one transform per component"
+        );
+        Placed::new(self, transforms)
+    }
+
+    /// Places the components as a state does.
+    pub fn place_state(&self, state: &State) -> Placed<'_> {
+        self.place(&state.transforms)
+    }
+}
 
 /// One component placed in the world.
 #[derive(Clone, Copy, Debug)]

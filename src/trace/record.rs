@@ -6,7 +6,7 @@ use crate::scene::Surfels;
 /// Front-to-back composite of the hits along one ray (eq. surface-record). The fields are the
 /// weighted sums Σ w_j z_j with `w_j = α_j Π_{k<j}(1 − α_k)`, i.e. the numerators of the paper's
 /// z̄; the `mean_*` accessors divide by `alpha` = Σ w_j. Keeping the sums makes records additive
-/// and keeps "no hit" exactly zero (DESIGN §2: no hit = depth 0).
+/// and keeps "no hit" exactly zero (docs/design.md §2: no hit = depth 0).
 ///
 /// Normals are world space and turned to face the ray (`n` flipped when `n·d > 0`) before they
 /// are summed, so the two faces of a surfel composite alike.

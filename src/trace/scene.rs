@@ -1,9 +1,8 @@
 //! The bottom level: one BVH per component, built once in the component's own frame.
 
-use super::placed::Placed;
 use super::surfel::{surfel_bounds, HitSurfel};
 use crate::scene::Material;
-use crate::scene::{Rigid, Scene, State, Surfels};
+use crate::scene::{Scene, Surfels};
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::{builder::build_cwbvh, CwBvh};
 use obvhs::BvhBuildParams;
@@ -155,23 +154,5 @@ impl TraceScene {
 
     pub fn component_count(&self) -> usize {
         self.blas.len()
-    }
-
-    /// Places the components with one rigid transform each (component frame → world): the
-    /// top level only, no BVH is rebuilt.
-    ///
-    /// Panics unless there is exactly one transform per component (a validated [`State`] has).
-    pub fn place(&self, transforms: &[Rigid]) -> Placed<'_> {
-        assert_eq!(
-            transforms.len(),
-            self.blas.len(),
-            "TraceScene::place: expected one transform per component"
-        );
-        Placed::new(self, transforms)
-    }
-
-    /// Places the components as a state does.
-    pub fn place_state(&self, state: &State) -> Placed<'_> {
-        self.place(&state.transforms)
     }
 }

@@ -20,12 +20,20 @@
 //! **Memory**: per pixel and position one ray (32 B), one record (56 B), one offset (8 B) and
 //! 12 B per composited hit; [`PrimaryCache::bytes`] reports it (stage 3's report states it).
 
-use super::train::TrainState;
-use crate::scene::Surfels;
+use crate::io::dataset::Observation;
+use crate::scene::{Rigid, Surfels};
 use crate::shade::estimator::{PixelFilter, DEFAULT_FILTER_WIDTH};
 use crate::shade::Sampler;
 use crate::trace::{SurfaceRecord, TraceRay, TraceScene, WeightedHit};
 use rayon::prelude::*;
+
+/// One training state as the loop sees it: its captures and where every component stands.
+pub struct TrainState<'a> {
+    pub views: Vec<&'a Observation>,
+    pub transforms: Vec<Rigid>,
+    /// Secondary-ray offset ([`crate::shade::estimator::self_hit_epsilon`]).
+    pub eps: f32,
+}
 
 /// Pixels per parallel work item when tracing the cache (fixed: the result does not depend on
 /// the thread count; it would not anyway, each pixel's entries being independent).

@@ -2,8 +2,9 @@
 //! warning when stage 2 has not run) and the dataset's captures to `<work>/relightable.glb`,
 //! `<work>/relightable.usda` and `<work>/invert/{report.json, log.jsonl, checkpoint.json}`.
 
+use super::cache::TrainState;
 use super::cache::{CacheFigures, PrimaryCache};
-use super::train::{initial_environment, Inverter, Settings, TrainState};
+use super::train::{initial_environment, Inverter, Settings};
 use crate::error::{Error, Result};
 use crate::eval::lighting::{
     compare_albedo, compare_environments, compare_materials, AlbedoFigures, EnvFigures,

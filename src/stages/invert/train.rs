@@ -31,11 +31,11 @@
 //! iterations and again at 80 % ([`SppSchedule::Paper`], the paper's 8/16/32 at 7,500 and
 //! 12,000 of 15,000), or fixed, or capped at twice the start (Table 4's `fixed8`, `max16`).
 
-use super::cache::PrimaryCache;
+use super::cache::{PrimaryCache, TrainState};
 use crate::io::dataset::Observation;
 use crate::optim::{env_tv, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
-use crate::scene::{Environment, Rigid, Surfels};
+use crate::scene::{Environment, Surfels};
 use crate::shade::envmap::{direction_to_uv, EnvMap};
 use crate::shade::estimator::{Estimator, Strategy};
 use crate::shade::Sampler;
@@ -295,14 +295,6 @@ pub struct Losses {
     pub tv: f32,
     pub total: f32,
     pub spp: u32,
-}
-
-/// One training state as the loop sees it: its captures and where every component stands.
-pub struct TrainState<'a> {
-    pub views: Vec<&'a Observation>,
-    pub transforms: Vec<Rigid>,
-    /// Secondary-ray offset ([`crate::shade::estimator::self_hit_epsilon`]).
-    pub eps: f32,
 }
 
 /// Inverse rendering's parameters, Adam, and where the run stands.

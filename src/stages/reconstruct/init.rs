@@ -5,7 +5,7 @@
 //!
 //! **Back-projection.** Pixel (x, y) has its centre at (x + 0.5, y + 0.5); with planar depth z
 //! along the camera's −Z axis the camera-space point is ((u − c_x) z / f_x, −(v − c_y) z / f_y,
-//! −z), then the camera-to-world matrix places it (DESIGN §2). The reference normal is used when
+//! −z), then the camera-to-world matrix places it (docs/design.md §2). The reference normal is used when
 //! the normal pass has one (flipped to face the camera); otherwise a normal is estimated from the
 //! neighbouring depth pixels of the same mask id. The footprint is the side of the pixel on the
 //! surface: z / f (f = √(f_x f_y)) divided by the obliquity |cos θ| between the view ray and the
@@ -18,7 +18,7 @@
 //! so the result does not depend on the input order.
 //!
 //! **Frames.** The background never moves: its points from every training state share the world
-//! frame. An object's surfels live in the reference state's frame (DESIGN §2 "object frame");
+//! frame. An object's surfels live in the reference state's frame (docs/design.md §2, "object frame");
 //! a point seen in state k is mapped back by T_{k,o}⁻¹, the inverse of the object's pose in
 //! that state (eq. state-assembly), which [`super::register`] estimates.
 
