@@ -8,6 +8,10 @@ mod render;
 use clap::{Parser, Subcommand};
 use lightfuse::error::{Error, Result};
 use lightfuse::io::work::WorkDir;
+use lightfuse::shade::estimator::Strategy;
+use lightfuse::stages::invert::train::{Loss, SppSchedule};
+use lightfuse::stages::reconstruct::train::PoseRefinement;
+use lightfuse::stages::Preset;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -77,7 +81,7 @@ pub struct EvaluateArgs {
     /// Work folder holding stage 1's scene.glb and stage 3's relightable.glb.
     pub work: PathBuf,
     /// Samples per pixel of the path-traced rows (the paper's evaluation: 32).
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = lightfuse::eval::relight::DEFAULT_SPP)]
     pub spp: u32,
     /// Seed of the Sobol scrambles.
     #[arg(long, default_value_t = 0)]
@@ -109,19 +113,19 @@ pub struct RunArgs {
     /// Work folder (every stage's output; see docs/formats.md).
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Every stage's settings: "fast" (this machine, minutes) or "paper".
-    #[arg(long, default_value = "fast")]
-    pub preset: String,
+    /// Every stage's settings: fast (this machine, minutes) or paper.
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    pub preset: Preset,
     /// Run every stage again even when its output is up to date.
     #[arg(long)]
     pub force: bool,
     /// Evaluate without Open Image Denoise (the paper denoised).
     #[arg(long)]
     pub no_denoise: bool,
-    /// Stage 3's image term: "l1" (the paper's) or "weighted-l2" (see `lightfuse invert`);
+    /// Stage 3's image term: l1 (the paper's) or weighted-l2 (see `lightfuse invert`);
     /// default: the preset's.
-    #[arg(long)]
-    pub loss: Option<String>,
+    #[arg(long, value_enum)]
+    pub loss: Option<Loss>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -162,35 +166,35 @@ pub struct InvertArgs {
     /// The scene to invert, if not <work>/refined.glb.
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// Settings: "fast" (minutes for the demo on a laptop) or "paper" (15,000 iterations of
+    /// Settings: fast (minutes for the demo on a laptop) or paper (15,000 iterations of
     /// 16,384 pixels, 8/16/32 spp).
-    #[arg(long, default_value = "fast")]
-    pub preset: String,
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    pub preset: Preset,
     /// Iterations (default: the preset's); the stage boundaries stay where the preset puts them.
     #[arg(long)]
     pub iterations: Option<u32>,
-    /// How samples per pixel grow: "paper" (x1, x2 from half, x4 from 80%), "fixed8" (x1),
-    /// "max16" (x1, x2 from half) - the paper's Table 4.
-    #[arg(long, default_value = "paper")]
-    pub spp_schedule: String,
-    /// Training estimator: "full" (environment next-event estimation and a BSDF continuation
-    /// with MIS, the paper's) or "naive" (cosine-hemisphere continuations only, no next-event
+    /// How samples per pixel grow: paper (x1, x2 from half, x4 from 80%), fixed8 (x1),
+    /// max16 (x1, x2 from half) - the paper's Table 4.
+    #[arg(long, value_enum, default_value_t = SppSchedule::Paper)]
+    pub spp_schedule: SppSchedule,
+    /// Training estimator: full (environment next-event estimation and a BSDF continuation
+    /// with MIS, the paper's) or naive (cosine-hemisphere continuations only, no next-event
     /// estimation, no MIS: the paper's Table 4 baseline).
-    #[arg(long, default_value = "full")]
-    pub estimator: String,
-    /// Image term: "l1" (the paper's) or "weighted-l2" (unbiased at low spp:
+    #[arg(long, value_enum, default_value_t = Strategy::Full)]
+    pub estimator: Strategy,
+    /// Image term: l1 (the paper's) or weighted-l2 (unbiased at low spp:
     /// `stages::invert::train::Loss`); default: the preset's.
-    #[arg(long)]
-    pub loss: Option<String>,
+    #[arg(long, value_enum)]
+    pub loss: Option<Loss>,
     /// Sub-pixel positions per training pixel whose primary records are traced once and
     /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
     /// memory in proportion (the report states it).
     #[arg(long)]
     pub primary_jitters: Option<u32>,
     /// Evaluation: samples per pixel, and every N-th pixel in x and y of each view.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = lightfuse::stages::invert::run::DEFAULT_EVAL_SPP)]
     pub eval_spp: u32,
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = lightfuse::stages::invert::run::DEFAULT_EVAL_STRIDE)]
     pub eval_stride: u32,
     /// Continue from <work>/invert/checkpoint.json if it is there.
     #[arg(long)]
@@ -208,10 +212,10 @@ pub struct RefineArgs {
     /// Stage 1's scene, if not <work>/scene.glb.
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// Settings: "fast" (minutes on a laptop) or "paper" (16,384 rays per iteration, 5,000
+    /// Settings: fast (minutes on a laptop) or paper (16,384 rays per iteration, 5,000
     /// iterations).
-    #[arg(long, default_value = "fast")]
-    pub preset: String,
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    pub preset: Preset,
     /// Iterations (default: the preset's).
     #[arg(long)]
     pub iterations: Option<u32>,
@@ -241,9 +245,9 @@ pub struct ReconstructArgs {
     /// Work folder: scene.glb, report.json, log.jsonl, checkpoint.json.
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Settings: "fast" (minutes on a laptop) or "paper" (2DGS's 30k iterations).
-    #[arg(long, default_value = "fast")]
-    pub preset: String,
+    /// Settings: fast (minutes on a laptop) or paper (2DGS's 30k iterations).
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    pub preset: Preset,
     /// Iterations (default: the preset's).
     #[arg(long)]
     pub iterations: Option<u32>,
@@ -251,21 +255,21 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub oracle_poses: bool,
     /// Refine the object poses by the splatting gradients from a third of the iterations on:
-    /// "photometric" (every term), "geometry" (the coverage, depth and normal terms only, which
-    /// a change of lighting does not bias) or "off" (default: the presets' choice, stage 1's
+    /// photometric (every term), geometry (the coverage, depth and normal terms only, which
+    /// a change of lighting does not bias) or off (default: the presets' choice, stage 1's
     /// registered poses are kept; on the demo both refinements moved them farther from the
     /// truth: `train::Settings::fast`). A run resumed with more --iterations keeps the start
     /// its checkpoint had.
-    #[arg(long)]
-    pub refine_poses: Option<String>,
+    #[arg(long, value_enum)]
+    pub refine_poses: Option<PoseRefinement>,
     /// Continue from --out/checkpoint.json if it is there.
     #[arg(long)]
     pub resume: bool,
     /// Voxel pitch of the initial point thinning, metres.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = lightfuse::stages::reconstruct::run::DEFAULT_VOXEL)]
     pub voxel: f32,
     /// Depth-discrepancy threshold of the completion (eq. completion-mask), metres.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = lightfuse::stages::reconstruct::run::DEFAULT_TAU_D)]
     pub tau_d: f32,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -724,38 +728,15 @@ fn attach_dataset_states(
     Ok(())
 }
 
-/// A stage's settings by `--preset` name.
-fn preset<T>(name: &str, fast: fn() -> T, paper: fn() -> T) -> Result<T> {
-    match name {
-        "fast" => Ok(fast()),
-        "paper" => Ok(paper()),
-        other => Err(Error::Usage(format!(
-            "--preset: expected \"fast\" or \"paper\", found {other:?}"
-        ))),
-    }
-}
-
 fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
     use lightfuse::stages::reconstruct::{run, train::Settings};
-    let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
+    let mut settings = a.preset.pick(Settings::fast, Settings::paper);
     if let Some(n) = a.iterations {
         settings.iterations = n;
     }
     settings.seed = a.seed;
-    if let Some(r) = &a.refine_poses {
-        use lightfuse::stages::reconstruct::train::PoseGradient;
-        let (from, gradient) = match r.as_str() {
-            "off" => (u32::MAX, settings.pose_gradient),
-            "geometry" => (settings.iterations / 3, PoseGradient::Geometry),
-            "photometric" => (settings.iterations / 3, PoseGradient::Photometric),
-            other => {
-                return Err(Error::Usage(format!(
-                    "--refine-poses: expected \"geometry\", \"photometric\" or \"off\", found {other:?}"
-                )))
-            }
-        };
-        settings.pose_from = from;
-        settings.pose_gradient = gradient;
+    if let Some(r) = a.refine_poses {
+        r.apply(&mut settings);
     }
     if !(a.voxel > 0.0 && a.voxel.is_finite() && a.tau_d > 0.0 && a.tau_d.is_finite()) {
         return Err(Error::Usage(
@@ -838,7 +819,7 @@ fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
 
 fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
     use lightfuse::stages::refine::{self, Settings, Switches};
-    let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
+    let mut settings = a.preset.pick(Settings::fast, Settings::paper);
     if let Some(n) = a.iterations {
         settings.iterations = n;
     }
@@ -894,29 +875,16 @@ fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
 }
 
 fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
-    use lightfuse::stages::invert::{self, Settings, SppSchedule};
-    let mut settings = preset(&a.preset, Settings::fast, Settings::paper)?;
+    use lightfuse::stages::invert::{self, Settings};
+    let mut settings = a.preset.pick(Settings::fast, Settings::paper);
     if let Some(n) = a.iterations {
         settings.iterations = n;
     }
     settings.seed = a.seed;
-    settings.spp_schedule = SppSchedule::parse(&a.spp_schedule).ok_or_else(|| {
-        Error::Usage(format!(
-            "--spp-schedule: expected \"paper\", \"fixed8\" or \"max16\", found {:?}",
-            a.spp_schedule
-        ))
-    })?;
-    settings.estimator = match a.estimator.as_str() {
-        "full" => lightfuse::shade::estimator::Strategy::Full,
-        "naive" => lightfuse::shade::estimator::Strategy::Naive,
-        other => {
-            return Err(Error::Usage(format!(
-                "--estimator: expected \"full\" or \"naive\", found {other:?}"
-            )))
-        }
-    };
-    if let Some(l) = &a.loss {
-        settings.loss = parse_loss(l)?;
+    settings.spp_schedule = a.spp_schedule;
+    settings.estimator = a.estimator;
+    if let Some(l) = a.loss {
+        settings.loss = l;
     }
     if a.eval_spp == 0 || a.eval_stride == 0 {
         return Err(Error::Usage(
@@ -1008,25 +976,16 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
     Ok(())
 }
 
-/// `--loss` of `invert` and `run`.
-fn parse_loss(l: &str) -> Result<lightfuse::stages::invert::train::Loss> {
-    lightfuse::stages::invert::train::Loss::parse(l).ok_or_else(|| {
-        Error::Usage(format!(
-            "--loss: expected \"l1\" or \"weighted-l2\", found {l:?}"
-        ))
-    })
-}
-
 fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
     use lightfuse::stages::pipeline;
     let work = WorkDir::new(&a.out);
     let steps = pipeline::run(&pipeline::Options {
         dataset: a.dataset.clone(),
         work: work.clone(),
-        preset: a.preset.clone(),
+        preset: a.preset,
         force: a.force,
         denoise: !a.no_denoise,
-        loss: a.loss.as_deref().map(parse_loss).transpose()?,
+        loss: a.loss,
         quiet: cli.quiet || cli.json,
     })?;
     let eval_md = work.eval_md();

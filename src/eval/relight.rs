@@ -57,6 +57,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// Samples per pixel of the traced rows (the paper's 32; `--spp`).
+pub const DEFAULT_SPP: u32 = 32;
+
 pub struct Options {
     pub dataset: PathBuf,
     pub work: WorkDir,

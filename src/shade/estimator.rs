@@ -111,7 +111,17 @@ pub struct PathSample {
 }
 
 /// Which sampling strategies a path sample uses.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Strategy {
     /// The paper's: environment next-event estimation and a BSDF continuation combined by MIS at
@@ -127,7 +137,9 @@ pub enum Strategy {
     /// the environment as if nothing else were in the scene. The same next-event sample and
     /// BSDF sample as [`Strategy::Full`], combined by the same MIS weights, but no visibility
     /// ray and no continuation ray: every direction sees the environment (no shadows, no
-    /// inter-reflection). Camera rays still composite the scene.
+    /// inter-reflection). Camera rays still composite the scene. An evaluation row, not a
+    /// training choice (`lightfuse invert --estimator` does not offer it).
+    #[value(skip)]
     Unshadowed,
 }
 

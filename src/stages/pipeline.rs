@@ -8,6 +8,7 @@
 use crate::error::{Error, Result};
 use crate::io::work::WorkDir;
 use crate::progress::say;
+use crate::stages::Preset;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
@@ -16,7 +17,7 @@ pub struct Options {
     pub dataset: PathBuf,
     pub work: WorkDir,
     /// "fast" or "paper", for every stage.
-    pub preset: String,
+    pub preset: Preset,
     /// Run every step even when its outputs are up to date.
     pub force: bool,
     /// Denoise the evaluation's traced rows (see [`crate::eval::relight::Options::denoise`]);
@@ -98,13 +99,6 @@ fn invert_settings_match(report_json: &Path, loss: crate::stages::invert::train:
 
 /// Runs stages 1–3 and the evaluation; returns what each step did.
 pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
-    if opts.preset != "fast" && opts.preset != "paper" {
-        return Err(Error::Usage(format!(
-            "--preset: expected \"fast\" or \"paper\", found {:?}",
-            opts.preset
-        )));
-    }
-    let paper = opts.preset == "paper";
     if opts.denoise {
         // Checked here too, so that the run fails before the stages rather than after them.
         crate::shade::denoise::require("or pass --no-denoise to evaluate undenoised")?;
@@ -117,7 +111,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     let other_preset = std::fs::read(&record_path)
         .ok()
         .and_then(|b| serde_json::from_slice::<RunRecord>(&b).ok())
-        .is_some_and(|r| r.preset != opts.preset);
+        .is_some_and(|r| r.preset != opts.preset.name());
     let fresh = opts.force || other_preset;
     if other_preset {
         say(
@@ -133,11 +127,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     let w = &opts.work;
     let ds = dataset.file.clone();
     let invert_settings = || {
-        let mut s = if paper {
-            crate::stages::invert::Settings::paper()
-        } else {
-            crate::stages::invert::Settings::fast()
-        };
+        use crate::stages::invert::Settings;
+        let mut s = opts.preset.pick(Settings::fast, Settings::paper);
         if let Some(l) = opts.loss {
             s.loss = l;
         }
@@ -179,7 +170,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
         });
         let record = RunRecord {
             format: "lightfuse-run/1".into(),
-            preset: opts.preset.clone(),
+            preset: opts.preset.name().into(),
             steps: steps.clone(),
         };
         crate::stages::common::write_checkpoint(&record_path, &record)
@@ -191,11 +182,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
         vec![ds.clone()],
         &mut |resume| {
             use crate::stages::reconstruct::{run, train::Settings};
-            let settings = if paper {
-                Settings::paper()
-            } else {
-                Settings::fast()
-            };
+            let settings = opts.preset.pick(Settings::fast, Settings::paper);
             run::reconstruct(&run::Options {
                 dataset: ds.clone(),
                 work: w.clone(),
@@ -203,8 +190,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                 oracle_poses: false,
                 resume,
                 quiet: opts.quiet,
-                voxel: 0.01,
-                tau_d: 0.05,
+                voxel: run::DEFAULT_VOXEL,
+                tau_d: run::DEFAULT_TAU_D,
             })
             .map(|_| ())
         },
@@ -215,11 +202,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
         vec![ds.clone(), w.scene()],
         &mut |resume| {
             use crate::stages::refine::{self, Settings};
-            let settings = if paper {
-                Settings::paper()
-            } else {
-                Settings::fast()
-            };
+            let settings = opts.preset.pick(Settings::fast, Settings::paper);
             refine::refine(&refine::Options {
                 dataset: ds.clone(),
                 work: w.clone(),
@@ -244,8 +227,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                 work: w.clone(),
                 scene: None,
                 settings,
-                eval_spp: 16,
-                eval_stride: 2,
+                eval_spp: invert::run::DEFAULT_EVAL_SPP,
+                eval_stride: invert::run::DEFAULT_EVAL_STRIDE,
                 resume,
                 quiet: opts.quiet,
             })
@@ -260,7 +243,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             crate::eval::relight::evaluate(&crate::eval::relight::Options {
                 dataset: ds.clone(),
                 work: w.clone(),
-                spp: 32,
+                spp: crate::eval::relight::DEFAULT_SPP,
                 seed: 0,
                 images: true,
                 denoise: opts.denoise,

@@ -33,6 +33,11 @@ const CHECKPOINT_EVERY: u32 = 50;
 /// log.jsonl gets the mean losses of each window of this many iterations.
 const LOG_EVERY: u32 = 10;
 
+/// Stage 3's own figures: samples per pixel, and every N-th pixel in x and y of each view
+/// (`--eval-spp`, `--eval-stride`).
+pub const DEFAULT_EVAL_SPP: u32 = 16;
+pub const DEFAULT_EVAL_STRIDE: u32 = 2;
+
 pub struct Options {
     pub dataset: PathBuf,
     /// The work folder: stage 2's `refined.glb` is read from it unless `scene` says otherwise.

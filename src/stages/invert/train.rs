@@ -48,7 +48,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// How the samples per pixel grow over the run (the paper's Table 4 compares these).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum SppSchedule {
     /// `spp`, 2·spp from half the iterations, 4·spp from 80 % (paper: 8, 16 at 7,500, 32 at
@@ -58,17 +58,6 @@ pub enum SppSchedule {
     Fixed8,
     /// `spp`, 2·spp from half the iterations (paper: 8, then 16).
     Max16,
-}
-
-impl SppSchedule {
-    pub fn parse(s: &str) -> Option<SppSchedule> {
-        match s {
-            "paper" => Some(SppSchedule::Paper),
-            "fixed8" => Some(SppSchedule::Fixed8),
-            "max16" => Some(SppSchedule::Max16),
-            _ => None,
-        }
-    }
 }
 
 /// The image term of L_IR, on scene-linear HDR.
@@ -82,7 +71,7 @@ impl SppSchedule {
 /// the excess (materials or the environment) depends on the scene (measured: on the demo and
 /// kitchen, L1 left the environments 25-30 % too bright and the albedo too dark). A loss whose
 /// derivative is linear in L_p has expectation ∂ℓ/∂L_p(E[L_p]): unbiased at any spp.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Loss {
     /// The paper's L1 (eq. training-objectives): mean |L_p − I_p| over pixels and channels.
@@ -97,14 +86,6 @@ pub enum Loss {
 }
 
 impl Loss {
-    pub fn parse(s: &str) -> Option<Loss> {
-        match s {
-            "l1" => Some(Loss::L1),
-            "weighted-l2" | "weighted_l2" => Some(Loss::WeightedL2),
-            _ => None,
-        }
-    }
-
     /// ε of [`Loss::WeightedL2`] for an iteration's drawn captures: a tenth of their mean
     /// (0 for L1).
     pub fn epsilon(&self, captures: impl Iterator<Item = [f32; 3]>) -> f64 {

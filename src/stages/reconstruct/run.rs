@@ -41,6 +41,11 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// Voxel pitch of the initial point thinning, metres (`--voxel`).
+pub const DEFAULT_VOXEL: f32 = 0.01;
+/// Depth-discrepancy threshold τ_D of eq. completion-mask, metres (`--tau-d`).
+pub const DEFAULT_TAU_D: f32 = 0.05;
+
 pub struct Options {
     pub dataset: PathBuf,
     pub work: WorkDir,

@@ -27,6 +27,32 @@ use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+/// Whether and by which terms stage 1 refines the object poses during training
+/// (`lightfuse reconstruct --refine-poses`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PoseRefinement {
+    /// The poses registration found are kept (the presets' choice, [`Settings::fast`]).
+    Off,
+    /// Moved by the lighting-free terms, from a third of the iterations on
+    /// ([`PoseGradient::Geometry`]).
+    Geometry,
+    /// Moved by every term, from a third of the iterations on ([`PoseGradient::Photometric`]).
+    Photometric,
+}
+
+impl PoseRefinement {
+    /// `settings` with poses refined this way: from a third of its iterations, or never.
+    pub fn apply(self, settings: &mut Settings) {
+        let (from, gradient) = match self {
+            PoseRefinement::Off => (u32::MAX, settings.pose_gradient),
+            PoseRefinement::Geometry => (settings.iterations / 3, PoseGradient::Geometry),
+            PoseRefinement::Photometric => (settings.iterations / 3, PoseGradient::Photometric),
+        };
+        settings.pose_from = from;
+        settings.pose_gradient = gradient;
+    }
+}
+
 /// The loss terms whose gradient moves the object poses of the non-reference states.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
