@@ -471,12 +471,7 @@ pub fn run(cli: &Cli) -> Result<()> {
 }
 
 fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {
-    let name = a
-        .input
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let env = lightfuse::io::exr::read_environment(&a.input, &name)?;
+    let env = lightfuse::io::exr::read_latlong(&a.input, None)?;
     let out = match a.size {
         Some((w, h)) => env.resample(w, h),
         None => env.clone(),
@@ -522,16 +517,7 @@ fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
         None => None,
     };
     let environment = match &a.env {
-        Some(p) => {
-            let name = p
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let mut env = lightfuse::io::exr::read_environment(p, &name)?;
-            env.check_latlong(p, "EXR data window")?;
-            env.clamp_negative();
-            Some((env, a.env_rotation))
-        }
+        Some(p) => Some((lightfuse::io::exr::read_latlong(p, None)?, a.env_rotation)),
         None => None,
     };
     scene.apply_edit(
@@ -661,12 +647,7 @@ fn attach_dataset_states(
             });
         }
         let path = d.path(rel);
-        let name = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let mut env = lightfuse::io::exr::read_environment(&path, &name)?;
-        env.clamp_negative();
+        let mut env = lightfuse::io::exr::read_latlong(&path, None)?;
         if let Some((w, h)) = env_size {
             env = env.resample(w, h);
         }

@@ -180,13 +180,7 @@ fn select_environment<'s>(
     a: &RenderArgs,
 ) -> Result<(std::borrow::Cow<'s, Environment>, f32, String)> {
     if let Some(path) = &a.env {
-        let name = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let mut env = lightfuse::io::exr::read_environment(path, &name)?;
-        env.check_latlong(path, "EXR data window")?;
-        env.clamp_negative();
+        let env = lightfuse::io::exr::read_latlong(path, None)?;
         return Ok((
             std::borrow::Cow::Owned(env),
             a.env_rotation.unwrap_or(0.0),

@@ -47,7 +47,7 @@ use crate::eval::tables::{
 };
 use crate::io::dataset::{Dataset, Frame};
 use crate::io::work::{read_stage_scene, WorkDir};
-use crate::scene::{Environment, Layout, Scene, State};
+use crate::scene::{Layout, Scene, State};
 use crate::shade::denoise::denoise_render;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
 use crate::shade::render::{environment_image, Aovs, Primaries};
@@ -172,9 +172,7 @@ fn run_environment(
         ));
     }
     let path = d.path(run.environment);
-    let mut env: Environment = crate::io::exr::read_environment(&path, run.environment)?;
-    env.check_latlong(&path, "EXR data window")?;
-    env.clamp_negative();
+    let env = crate::io::exr::read_latlong(&path, Some(run.environment))?;
     Ok((
         EnvMap::new(&env, 0.0),
         format!("dataset: {}", run.environment),

@@ -315,8 +315,7 @@ impl Dataset {
         let Some(rel) = self.states[k].environment.as_deref() else {
             return Ok(None);
         };
-        let mut env = super::exr::read_environment(&self.path(rel), &self.states[k].name)?;
-        env.clamp_negative();
+        let env = super::exr::read_latlong(&self.path(rel), Some(&self.states[k].name))?;
         Ok(Some(env))
     }
 
