@@ -9,28 +9,30 @@
 # Every step is skipped when its output exists and resumes from its checkpoint when it was
 # killed, so the script can be stopped and run again. Each evaluation's eval.json and eval.md,
 # and each stage's report.json, are kept in <results>/<preset>[/<variant>] (~110 kB; by default
-# docs/paper-results, which is committed: the tables are measured over several sittings on
-# machines that keep no data between them), and a row whose results are there is not run again: with --prune, a preset's dataset and work
-# folders (~GBs) are deleted as soon as every requested table has what it needs from them, so
-# the tables can be measured over several sittings without keeping the big outputs. Writes
-# <out>/tables.md (and prints it); with --readme, also replaces the block between the README's
-# `paper-tables` markers.
+# docs/results/paper, which is committed: the tables can be measured over several sittings on
+# machines that keep no data between them), and a row whose results are there is not run again:
+# with --prune, a preset's dataset and work folders (~GBs) are deleted as soon as every
+# requested table has what it needs from them. Writes the tables, made from every result kept
+# in <results> (the tables not requested included), to --table (default docs/results/tables.md)
+# and prints them. --readme is an old name that does nothing more (the tables are always
+# written; the README holds no results).
 #
-# Usage: bash scripts/paper_tables.sh [--out data/paper] [--results docs/paper-results] [--presets "bedroom playroom livingroom kitchen"]
-#            [--tables "1 3 4"] [--preset fast|paper] [--test-views 8] [--prune] [--readme]
-# Cost on this machine (2 cores), fast preset, per preset: generation ~15 min, stage 1 ~25-45
+# Usage: bash scripts/paper_tables.sh [--out data/paper] [--results docs/results/paper]
+#            [--table docs/results/tables.md] [--presets "bedroom playroom livingroom kitchen"]
+#            [--tables "1 3 4"] [--preset fast|paper] [--test-views 8] [--prune]
+# Cost on a 2-core machine, fast preset, per preset: generation ~15 min, stage 1 ~25-45
 # min, stage 2 ~20 min; Tables 3 and 4 add 7 variants of bedroom (4 x refine + invert + a
 # LightFuse-only evaluation, 3 x invert + the same evaluation: ~1 h each).
-# One preset's Table 1 row took 1.5-2 h here (bedroom, playroom). Hours in all: run it overnight.
+# One preset's Table 1 row took 1.5-2 h (bedroom, playroom). Hours in all: run it overnight.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=data/paper
-res=docs/paper-results
+res=docs/results/paper
+table=docs/results/tables.md
 presets="bedroom playroom livingroom kitchen"
 tables="1 3 4"
 stage_preset=fast
 test_views=8
-readme=0
 prune=0
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -40,9 +42,10 @@ while [ $# -gt 0 ]; do
     --tables) tables=$2; shift 2 ;;
     --preset) stage_preset=$2; shift 2 ;;
     --test-views) test_views=$2; shift 2 ;;
-    --readme) readme=1; shift ;;
+    --table) table=$2; shift 2 ;;
+    --readme) shift ;; # deprecated: the tables are always written to --table
     --prune) prune=1; shift ;;
-    -h | --help) sed -n '2,24p' "$0"; exit 0 ;;
+    -h | --help) sed -n '2,26p' "$0"; exit 0 ;;
     *) echo "paper_tables.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -145,9 +148,9 @@ for t in $tables; do
 done
 [[ " $presets $tables " == *" bedroom "* || " $tables " == *" 3 "* || " $tables " == *" 4 "* ]] && prune_preset bedroom
 
-# The Markdown: every figure read from the eval.json files just made.
-mkdir -p "$out"
-"$py" - "$res" "$tables" "$presets" "$stage_preset" "$test_views" > "$out/tables.md" <<'PY'
+# The Markdown: every figure read from the kept eval.json files.
+mkdir -p "$(dirname "$table")"
+"$py" - "$res" "$tables" "$presets" "$stage_preset" "$test_views" > "$table.tmp" <<'PY'
 import json, os, sys
 res, tables, presets, stage_preset, test_views = sys.argv[1], sys.argv[2].split(), sys.argv[3].split(), sys.argv[4], sys.argv[5]
 ROWS = [("lightfuse", "LightFuse"), ("baked", "Baked"), ("no_retracing", "No re-tracing")]
@@ -173,13 +176,27 @@ def fig(row, key="raw"):
     m = row[key]
     return f"{m['psnr_srgb_db']:.2f} | {m['ssim_srgb']:.3f}"
 
+T3_FOLDERS = ["t3-no-coverage", "t3-no-scale", "t3-no-depth", "t3-no-normal"]
+T4_FOLDERS = ["t4-naive", "t4-fixed8", "t4-max16"]
+# Every table with results kept, requested or not: the file is rewritten on every run, and a run
+# of one table must not drop the others.
+requested = tables
+kept = {"1": any(source(p) for p in ["bedroom", "playroom", "livingroom", "kitchen"] + presets),
+        "3": any(source(f"bedroom/{v}") for v in T3_FOLDERS),
+        "4": any(source(f"bedroom/{v}") for v in T4_FOLDERS)}
+tables = [t for t in ("1", "3", "4") if t in requested or kept[t]]
 earlier = [p for p in ["bedroom", "playroom", "livingroom", "kitchen"] if p not in presets and source(p)]
 transcribed = [p for p in earlier if source(p).endswith("transcribed.json")]
-print(f"Measured by `bash scripts/paper_tables.sh --tables \"{' '.join(tables)}\" --presets \"{' '.join(presets)}\" "
+others = [t for t in tables if t not in requested]
+print("# The paper's tables on the synthetic presets\n")
+print(f"Written by `scripts/paper_tables.sh` from the results kept in `{res}/` (do not edit by hand: "
+      "a paper-preset run's note is its `<preset>-paper/note.md` there). Machines: VMs with 2 cores, 24 GiB and no GPU.\n")
+print(f"Measured by `bash scripts/paper_tables.sh --tables \"{' '.join(requested)}\" --presets \"{' '.join(presets)}\" "
       f"--preset {stage_preset} --test-views {test_views}`"
       + (f" (rows {', '.join(earlier)}: earlier sittings of the same command, with `--presets` naming them"
          + (f"; {', '.join(transcribed)}: transcribed to two decimals from the README of their sitting, the full results lost with that machine's data, so means may differ by 0.01"
             if transcribed else "") + ")" if earlier else "")
+      + (f" (Table{'s' * (len(others) > 1)} {', '.join(others)}: earlier runs of the same command)" if others else "")
       + " (PSNR dB / SSIM on 8-bit sRGB, 32 spp, denoised; \"rescaled\": after "
       "the per-channel median albedo rescale; the test arrangement under the environments no training "
       "state saw).\n")
@@ -204,8 +221,8 @@ if "1" in tables:
     # Stage 3 on the paper preset, kept in <res>/<preset>-paper, beside stage 3 on the fast
     # preset from the same refined scene (<res>/<preset>-paper/fast): a table of its own, since
     # the rows above share one preset and their mean compares like with like. These runs are
-    # not made by this script (stages 1-2 fast, stage 3 paper: the README's row gives the
-    # commands); the table is kept here so that --readme does not drop it.
+    # not made by this script (stages 1-2 fast, stage 3 paper: the folder's note.md gives the
+    # commands, and is printed under the table).
     paper = [p for p in every if source(f"{p}-paper")]
     if paper:
         print("Table 1 with stage 3 on the paper preset (15,000 iterations at 8 -> 16 -> 32 spp; stages 1 "
@@ -221,6 +238,10 @@ if "1" in tables:
                 rows = ev(folder)["relighting"]
                 print(f"| {p} | {label} | {cells(rows)}")
         print()
+        for p in paper:
+            note = os.path.join(res, f"{p}-paper", "note.md")
+            if os.path.isfile(note):
+                print(f"{p}: " + " ".join(open(note).read().split()) + "\n")
 
 def ablation(title, variants):
     full = ev("bedroom")["relighting"]["lightfuse"]
@@ -276,18 +297,6 @@ if "4" in tables:
         ("Fixed 8 spp" + (" (fast: 2)" if fast else ""), "t4-fixed8", (27.042, 0.8663)),
         ("Max 16 spp (8 -> 16" + ("; fast: 2 -> 4)" if fast else ")"), "t4-max16", (27.029, 0.8668))])
 PY
-cat "$out/tables.md"
-
-if [ "$readme" = 1 ]; then
-  "$py" - "$out/tables.md" README.md <<'PY'
-import sys
-tables, readme = open(sys.argv[1]).read(), sys.argv[2]
-text = open(readme).read()
-begin, end = "<!-- paper-tables: begin -->", "<!-- paper-tables: end -->"
-if begin not in text or end not in text:
-    sys.exit(f"{readme}: expected the markers {begin} and {end}")
-head, rest = text.split(begin, 1)
-open(readme, "w").write(head + begin + "\n" + tables + rest[rest.index(end):])
-PY
-  say "README.md updated"
-fi
+mv "$table.tmp" "$table"
+cat "$table"
+say "tables written to $table"

@@ -9,33 +9,35 @@
 # Every step is skipped when its output exists, and a killed reconstruction resumes from its
 # checkpoint. Each scene's report.json, poses.json and time.txt (one line per invocation:
 # wall seconds, peak RSS in KiB; a hand-written note.md beside them becomes the row's footnote)
-# are kept in <results>/<scene> (by default docs/stage1-results,
-# committed: the survey is measured over several sittings on machines that keep no data
-# between them), and a scene whose results are there is not run again; with --prune its dataset
-# and work folder (~GB) are deleted as soon as they are kept. Writes <out>/survey.md (and prints
-# it); with --readme, also replaces the block between the README's `stage1-survey` markers.
+# are kept in <results>/<scene> (by default docs/results/stage1, committed: the survey can be
+# measured over several sittings on machines that keep no data between them), and a scene whose
+# results are there is not run again; with --prune its dataset and work folder (~GB) are
+# deleted as soon as they are kept. Writes the table, made from every scene kept in <results>,
+# to --table (default docs/results/stage1-survey.md) and prints it. --readme is an old name
+# that does nothing more (the table is always written; the README holds no results).
 #
-# Usage: bash scripts/stage1_survey.sh [--out data/survey] [--results docs/stage1-results]
-#            [--scenes "demo study gallery workshop bedroom playroom livingroom kitchen"]
-#            [--prune] [--readme]
+# Usage: bash scripts/stage1_survey.sh [--out data/survey] [--results docs/results/stage1]
+#            [--table docs/results/stage1-survey.md]
+#            [--scenes "demo study gallery workshop bedroom playroom livingroom kitchen"] [--prune]
 # A dataset already made elsewhere can be linked in as <out>/<scene>/dataset.
-# Cost on this machine (2 cores), per scene at its default size: generation ~7-15 min (demo 1),
+# Cost on a 2-core machine, per scene at its default size: generation ~7-15 min (demo 1),
 # stage 1 ~25-40 min (demo 4).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=data/survey
-res=docs/stage1-results
+res=docs/results/stage1
+table=docs/results/stage1-survey.md
 scenes="demo study gallery workshop bedroom playroom livingroom kitchen"
-readme=0
 prune=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) out=$2; shift 2 ;;
     --results) res=$2; shift 2 ;;
     --scenes) scenes=$2; shift 2 ;;
-    --readme) readme=1; shift ;;
+    --table) table=$2; shift 2 ;;
+    --readme) shift ;; # deprecated: the table is always written to --table
     --prune) prune=1; shift ;;
-    -h | --help) sed -n '2,23p' "$0"; exit 0 ;;
+    -h | --help) sed -n '2,24p' "$0"; exit 0 ;;
     *) echo "stage1_survey.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -80,13 +82,16 @@ for s in $scenes; do
   fi
 done
 
-mkdir -p "$out"
-"$py" - "$res" > "$out/survey.md" <<'PY'
+mkdir -p "$(dirname "$table")"
+"$py" - "$res" > "$table.tmp" <<'PY'
 import json, os, sys
 res = sys.argv[1]
 ORDER = ["demo", "bedroom", "playroom", "livingroom", "kitchen", "study", "gallery", "workshop"]
 FAMILY = {"study", "gallery", "workshop"}
 done = [s for s in ORDER if os.path.isfile(os.path.join(res, s, "report.json"))]
+print("# Stage 1 on every scene\n")
+print(f"Written by `scripts/stage1_survey.sh` from the results kept in `{res}/` (do not edit by hand: "
+      "a scene's footnote is its `note.md` there). Machines: VMs with 2 cores, 24 GiB and no GPU.\n")
 print("Measured by `bash scripts/stage1_survey.sh` (each scene at its default size, fast preset, "
       "3000 iterations; *italic*: the second family, never tuned on). Poses: every object in every "
       "state but the reference one, symmetry-aware rotation, translation at the point its symmetries "
@@ -142,17 +147,6 @@ if notes:
 if missing:
     print(f"\nNot measured yet: {', '.join(missing)}.")
 PY
-cat "$out/survey.md"
-if [ "$readme" = 1 ]; then
-  "$py" - "$out/survey.md" README.md <<'PY'
-import sys
-block, readme = open(sys.argv[1]).read().strip(), sys.argv[2]
-text = open(readme).read()
-b, e = "<!-- stage1-survey: begin -->", "<!-- stage1-survey: end -->"
-if b not in text or e not in text:
-    sys.exit(f"{readme}: the markers {b} and {e} are missing")
-head, rest = text.split(b, 1)
-_, tail = rest.split(e, 1)
-open(readme, "w").write(f"{head}{b}\n{block}\n{e}{tail}")
-PY
-fi
+mv "$table.tmp" "$table"
+cat "$table"
+say "table written to $table"
