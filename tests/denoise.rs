@@ -213,7 +213,7 @@ fn bad_inputs_are_errors() {
     assert_eq!(denoise_hdr(c, a, n, 16, 8).expect("denoise").len(), 128);
 }
 
-mod surfel_scenes;
+mod common;
 
 /// A path-traced render denoised as `lightfuse evaluate` and `lightfuse render --denoise` do it
 /// (`denoise_render`: guides from the pixel-centre records with the environment behind misses;
@@ -229,13 +229,13 @@ mod surfel_scenes;
 /// loses energy or clamps the highlights fails it).
 #[test]
 fn a_path_traced_render_denoised_with_its_guides_approaches_the_converged_image() {
+    use common::surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
     use glam::Vec3;
     use lightfuse::shade::denoise::denoise_render;
     use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter};
     use lightfuse::shade::render::{environment_image, Primaries};
     use lightfuse::shade::EnvMap;
     use lightfuse::trace::TraceScene;
-    use surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
 
     let scene = scene_of(vec![
         floor(-0.5, 2.0, 0.04, mat([0.6, 0.5, 0.4], 0.0, 0.7)),

@@ -17,8 +17,8 @@ use lightfuse::shade::render::{render_image, Primaries};
 use lightfuse::shade::EnvMap;
 use lightfuse::trace::TraceScene;
 
-mod surfel_scenes;
-use surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
+mod common;
+use common::surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
 
 fn ball_on_floor() -> Scene {
     scene_of(vec![

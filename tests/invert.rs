@@ -33,8 +33,8 @@ use lightfuse::stages::invert::cache::TrainState;
 use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings, SppSchedule};
 use lightfuse::trace::TraceScene;
 
-mod surfel_scenes;
-use surfel_scenes::{camera, floor, mat, scene_of, sphere};
+mod common;
+use common::surfel_scenes::{camera, floor, mat, scene_of, sphere};
 
 const FLOOR: [f32; 3] = [0.6, 0.45, 0.3];
 const BALL: [f32; 3] = [0.25, 0.4, 0.7];

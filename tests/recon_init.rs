@@ -14,23 +14,11 @@ use lightfuse::stages::reconstruct::init::*;
 /// A camera at `eye` looking at `target` (+Y up), 64x48 pixels, f = 60 px, principal point off
 /// centre so that a swapped cx/cy or a missing +0.5 shows.
 fn camera(eye: [f32; 3], target: [f32; 3]) -> Camera {
-    let eye = Vec3::from_array(eye);
-    let back = (eye - Vec3::from_array(target)).normalize(); // camera +Z
-    let right = Vec3::Y.cross(back).normalize();
-    let up = back.cross(right);
-    let mut m = [[0.0f32; 4]; 4];
-    for r in 0..3 {
-        m[r] = [right[r], up[r], back[r], eye[r]];
-    }
-    m[3] = [0.0, 0.0, 0.0, 1.0];
     Camera {
-        transform_matrix: m,
-        fl_x: 60.0,
         fl_y: 62.0,
         cx: 31.0,
         cy: 25.5,
-        w: 64,
-        h: 48,
+        ..Camera::look_at(eye, target, 64, 48, 60.0)
     }
 }
 

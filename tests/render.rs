@@ -18,9 +18,9 @@ use lightfuse::shade::{brdf, EnvMap, Sampler};
 use lightfuse::trace::TraceScene;
 use std::path::Path;
 
-mod surfel_scenes;
+mod common;
+use common::surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
 use std::process::Command;
-use surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
 
 /// Directional albedo E(μ) = ∫ f(wo, wi) cos θi dωi by a midpoint rule in (cos θi, φ).
 fn albedo(m: &Material, mu: f32) -> f64 {

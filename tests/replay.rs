@@ -27,8 +27,8 @@ use lightfuse::shade::replay::PathReplay;
 use lightfuse::shade::{EnvMap, Sampler};
 use lightfuse::trace::{Placed, RecordGrad, SurfaceRecord, TraceGradients, TraceRay, TraceScene};
 
-mod surfel_scenes;
-use surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
+mod common;
+use common::surfel_scenes::{camera, floor, mat, random_env, scene_of, sphere};
 
 /// Each surfel its own material, drawn about the part's.
 fn varied(mut s: Surfels, rng: &mut SplitMix) -> Surfels {

@@ -33,23 +33,11 @@ use lightfuse::splat::reference::{self, RefComponent, RefImage};
 use lightfuse::splat::{self, ImageGrad, Placement, SplatImage};
 
 fn look_at(eye: Vec3, target: Vec3, w: u32, h: u32, f: f32, cx: f32, cy: f32) -> Camera {
-    let fwd = (target - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
-    let back = -fwd;
-    let mut m = [[0.0f32; 4]; 4];
-    for r in 0..3 {
-        m[r] = [right[r], up[r], back[r], eye[r]];
-    }
-    m[3] = [0.0, 0.0, 0.0, 1.0];
     Camera {
-        transform_matrix: m,
-        fl_x: f,
         fl_y: f * 1.03,
         cx,
         cy,
-        w,
-        h,
+        ..Camera::look_at(eye.to_array(), target.to_array(), w, h, f)
     }
 }
 

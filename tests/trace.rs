@@ -15,18 +15,8 @@ use lightfuse::scene::{Component, Rigid, Scene, Surfels};
 use lightfuse::trace::reference::{composite_brute, transmittance_brute};
 use lightfuse::trace::{RayStats, SurfaceRecord, TraceScene, BATCH, MAX_OPACITY, T_MIN};
 
-fn push(s: &mut Surfels, mu: [f32; 3], q: [f32; 4], scale: [f32; 2], alpha: f32, color: f32) {
-    s.push(
-        mu,
-        q,
-        scale,
-        alpha,
-        &[[0.0; 3]],
-        [color, 1.0 - color, 0.5 * color],
-        color,
-        1.0 - color,
-    );
-}
+mod common;
+use common::push;
 
 fn scene_of(components: Vec<Surfels>) -> Scene {
     let mut scene = Scene::from_background(Surfels::with_sh_degree(0));

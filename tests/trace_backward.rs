@@ -33,18 +33,8 @@ use lightfuse::trace::{
     RecordGrad, SurfaceRecord, TraceGradients, TraceRay, TraceScene, CUTOFF, RAY_CHUNK,
 };
 
-fn push(s: &mut Surfels, mu: [f32; 3], q: [f32; 4], scale: [f32; 2], alpha: f32, color: f32) {
-    s.push(
-        mu,
-        q,
-        scale,
-        alpha,
-        &[[0.0; 3]],
-        [color, 1.0 - color, 0.5 * color],
-        color,
-        1.0 - color,
-    );
-}
+mod common;
+use common::push;
 
 /// A scene, its placement, rays and the upstream gradient of each ray's record.
 struct Case {

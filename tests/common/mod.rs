@@ -1,4 +1,8 @@
-//! Helpers shared by integration tests.
+//! Fixtures shared by the integration tests: each test file that needs them declares
+//! `mod common;` and uses its part.
+#![allow(dead_code)] // each test crate uses some of these
+
+pub mod surfel_scenes;
 
 use std::path::{Path, PathBuf};
 
@@ -19,4 +23,27 @@ pub fn bundled_hdri_dir() -> PathBuf {
         })
         .find(|p| p.is_dir())
         .expect("bpy's studiolights/world folder in the venv")
+}
+
+/// Pushes a one-coefficient surfel whose base colour, metallic and roughness follow `color`, so
+/// that a record's blended material says which surfels it blended (`tests/trace.rs`,
+/// `tests/trace_backward.rs`).
+pub fn push(
+    s: &mut lightfuse::scene::Surfels,
+    mu: [f32; 3],
+    q: [f32; 4],
+    scale: [f32; 2],
+    alpha: f32,
+    color: f32,
+) {
+    s.push(
+        mu,
+        q,
+        scale,
+        alpha,
+        &[[0.0; 3]],
+        [color, 1.0 - color, 0.5 * color],
+        color,
+        1.0 - color,
+    );
 }

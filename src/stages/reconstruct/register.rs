@@ -1031,15 +1031,3 @@ pub fn registrations(pairs: &[Vec<Option<Pair>>]) -> Vec<Vec<Option<Registration
         })
         .collect()
 }
-
-/// Poses of every object in every state, relative to `states[0]` (the reference state, whose
-/// poses are identity with fitness 1): [`registrations`] of [`object_pairs`]. `poses[j][o]` is
-/// `None` when object `object_ids[o]` is too sparsely seen in state j or in the reference
-/// state.
-pub fn object_poses(
-    states: &[PointCloud],
-    object_ids: &[u8],
-    opts: &RegisterOptions,
-) -> Vec<Vec<Option<Registration>>> {
-    registrations(&object_pairs(states, object_ids, opts))
-}

@@ -1,6 +1,5 @@
 //! Small surfel scenes for the shading tests (`tests/render.rs`, `tests/replay.rs`): a
 //! Fibonacci sphere, a floor, a camera, a random environment.
-#![allow(dead_code)] // each test crate uses some of these
 
 use glam::{Quat, Vec3};
 use lightfuse::scene::synthetic::SplitMix;
