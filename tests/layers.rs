@@ -143,7 +143,7 @@ fn named_paths(code: &str, module: &[String]) -> Vec<Vec<String>> {
     let ident = |c: char| c.is_alphanumeric() || c == '_';
     let mut found = Vec::new();
     let mut rest = code;
-    while let Some(at) = rest.find(|c: char| c == 'c' || c == 's') {
+    while let Some(at) = rest.find(['c', 's']) {
         let before_ok = at == 0 || !rest[..at].chars().next_back().is_some_and(ident);
         let tail = &rest[at..];
         let (base, after) = if before_ok && tail.starts_with("crate::") {

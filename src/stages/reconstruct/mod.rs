@@ -1,5 +1,5 @@
 //! Stage 1, reconstruct (paper §"Interactive Scene Reconstruction"): initialisation from RGB-D
-//! ([`init`]), object poses per state ([`register`]), the background/object graph cut
+//! ([`init`]), object poses per state ([`poses`], from [`register`] and [`align`]), the background/object graph cut
 //! ([`segment`], [`maxflow`]), completion (eq. completion-mask, [`completion`]), the training
 //! loop ([`train`]), the removal of object surfels grown beneath their supports ([`support`]) and
 //! the stage as a function of files ([`run`]); [`align`] estimates object
@@ -9,6 +9,7 @@ pub mod align;
 pub mod completion;
 pub mod init;
 pub mod maxflow;
+pub mod poses;
 pub mod register;
 pub mod run;
 pub mod segment;

@@ -21,8 +21,9 @@
 //!    poses of step 2 before training ([`PoseSteps`]), is written when they are found, so the
 //!    report can say where a pose error entered.
 
+use super::poses::{self, PoseSteps};
 use super::train::{render_state, Model, RawComponent, Settings, Trainer};
-use super::{align, completion, init, register, segment, support};
+use super::{completion, init, segment, support};
 use crate::error::{Error, Result};
 use crate::eval::pose::pose_error;
 use crate::eval::report::{
@@ -37,7 +38,7 @@ use crate::stages::common::{
     check_resumed_settings, read_checkpoint, resume_or_start, StageLog, StageLoop,
 };
 use glam::Vec3;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -102,40 +103,6 @@ pub struct Report {
     #[serde(default)]
     pub beneath_support_dropped: Vec<(String, usize)>,
     pub oracle_poses: bool,
-}
-
-/// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
-/// identities included), as step 2 found them: by point-cloud registration (none where it
-/// failed), by the rendered alignment, each of the two polished by ICP in its own basin and
-/// the better fit of the two ([`register::Pair::best_fit`]), and where training starts: that
-/// pose or a polished turn of it about the vertical ([`register::Pair::choose_turn`]).
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct PoseSteps {
-    pub format: String,
-    pub registered: Vec<Vec<Option<Rigid>>>,
-    pub aligned: Vec<Vec<Rigid>>,
-    /// Of the aligned and the registered pose, each polished ([`register::Pair::polish`]),
-    /// the better geometric fit ([`register::Pair::best_fit`]).
-    pub polished: Vec<Vec<Rigid>>,
-    /// Where training starts: [`register::Pair::choose_turn`] of the polished pose.
-    pub turned: Vec<Vec<Rigid>>,
-}
-
-impl PoseSteps {
-    pub const FORMAT: &'static str = "lightfuse-stage1-poses/3";
-
-    /// The record in `work`, if there is one of `states` x `objects` poses (a record of another
-    /// dataset or an older format counts as none: it only adds figures to the report).
-    fn read(work: &WorkDir, states: usize, objects: usize) -> Option<PoseSteps> {
-        let p: PoseSteps = serde_json::from_slice(&std::fs::read(work.poses()).ok()?).ok()?;
-        let fits = |lens: Vec<usize>| lens.len() == states && lens.iter().all(|&l| l == objects);
-        (p.format == Self::FORMAT
-            && fits(p.registered.iter().map(Vec::len).collect())
-            && fits(p.aligned.iter().map(Vec::len).collect())
-            && fits(p.polished.iter().map(Vec::len).collect())
-            && fits(p.turned.iter().map(Vec::len).collect()))
-        .then_some(p)
-    }
 }
 
 /// The scene the model stands for: components and one state per training state.
@@ -263,19 +230,7 @@ fn initialise(
     // Poses (item 4).
     let ids: Vec<u8> = objects.iter().map(|o| o.id).collect();
     let poses: Vec<Vec<Rigid>> = if opts.oracle_poses {
-        train_states
-            .iter()
-            .map(|&k| {
-                objects
-                    .iter()
-                    .map(|o| {
-                        let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
-                        let pose = dataset.object_pose(k, &o.name)?;
-                        Ok(pose.compose(&ref_pose.inverse()))
-                    })
-                    .collect::<Result<Vec<_>>>()
-            })
-            .collect::<Result<_>>()?
+        poses::oracle(dataset, train_states, objects)?
     } else {
         let t = Instant::now();
         say(
@@ -286,95 +241,18 @@ fn initialise(
                 train.len()
             ),
         );
-        let ropts = register::RegisterOptions::default();
-        // Each object's clouds in the reference state and in state j, prepared once for
-        // the registration, the polish and the choice below.
-        let pairs = register::object_pairs(&clouds, &ids, &ropts);
-        let reg = register::registrations(&pairs);
-        // The point-cloud registrations are candidates for the analysis-by-synthesis search,
-        // which scores poses by rendering the object into every view of the state.
-        let initial: Vec<Vec<Option<Rigid>>> = reg
-            .iter()
-            .map(|row| row.iter().map(|r| r.map(|r| r.transform)).collect())
-            .collect();
-        let refs = align::median_footprint(&train[0], &ids)
-            .map(|voxel| align::reference_surfels(&train[0], &ids, voxel));
-        let aligned: Vec<Vec<Rigid>> = match refs {
-            Some(refs) => align::object_poses_by_rendering(
-                &refs,
-                &ids,
-                train,
-                &initial,
-                &align::AlignOptions::default(),
-            ),
-            None => initial
-                .iter()
-                .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
-                .collect(),
-        };
-        // Two hypotheses per object and state, each polished in its own basin by ICP
-        // (`register::Pair::polish`): the rendered alignment's pose, which finds the basin
-        // where registration lost the object (study: a thin sign, a chrome bottle upside
-        // down; bedroom: a lamp 65° off) but is biased by ~1-2 cm and a few degrees, and
-        // registration's estimate, right where the alignment's score chose a wrong basin
-        // (study: an untextured Suzanne 136° off). The one whose geometry fits the clouds
-        // best wins (`register::Pair::best_fit`; colour does not vote across lightings).
-        // Then, where the shape ties turns about the vertical (a solid of revolution, a box
-        // four ways), the texture decides between them (`register::Pair::choose_turn`).
-        let limits = register::PolishLimits::default();
-        let turn = register::TurnOptions::default();
-        let (polished, turned): (Vec<Vec<Rigid>>, Vec<Vec<Rigid>>) = aligned
-            .iter()
-            .enumerate()
-            .map(|(j, row)| {
-                row.iter()
-                    .enumerate()
-                    .map(|(o, pose)| {
-                        let Some(pair) = pairs[j][o].as_ref().filter(|_| j > 0) else {
-                            return (*pose, *pose);
-                        };
-                        // Registration's estimate, where it lies in the basin the
-                        // alignment chose, is a second start there.
-                        let starts: Vec<Rigid> =
-                            std::iter::once(*pose).chain(initial[j][o]).collect();
-                        let from_aligned =
-                            pair.polish(&starts, &limits).map_or(*pose, |r| r.transform);
-                        let from_registered = initial[j][o]
-                            .map(|r| pair.polish(&[r], &limits).map_or(r, |p| p.transform));
-                        let hypotheses: Vec<Rigid> = std::iter::once(from_aligned)
-                            .chain(from_registered)
-                            .collect();
-                        let polished = pair
-                            .best_fit(&hypotheses)
-                            .map_or(from_aligned, |(k, _)| hypotheses[k]);
-                        let turned = pair
-                            .choose_turn(&polished, Vec3::Y, &limits, &turn)
-                            .transform;
-                        (polished, turned)
-                    })
-                    .unzip()
-            })
-            .unzip();
+        let steps = poses::estimate(&clouds, train, &ids);
         say(
-                opts.quiet,
-                &format!(
-                    "registered {} objects in {} states in {:.1} s (point clouds, rendered views, ICP polish, turns)",
-                    objects.len(),
-                    train.len(),
-                    t.elapsed().as_secs_f64()
-                ),
-            );
-        crate::stages::common::write_checkpoint(
-            &opts.work.poses(),
-            &PoseSteps {
-                format: PoseSteps::FORMAT.into(),
-                registered: initial,
-                aligned,
-                polished,
-                turned: turned.clone(),
-            },
-        )?;
-        turned
+            opts.quiet,
+            &format!(
+                "registered {} objects in {} states in {:.1} s (point clouds, rendered views, ICP polish, turns)",
+                objects.len(),
+                train.len(),
+                t.elapsed().as_secs_f64()
+            ),
+        );
+        crate::stages::common::write_checkpoint(&opts.work.poses(), &steps)?;
+        steps.turned
     };
     let iopts = init::InitOptions {
         voxel: opts.voxel,

@@ -1,0 +1,152 @@
+//! Stage 1's object poses (item 4 of the stage; the paper's eq. state-assembly places each
+//! object by them): every object's rigid motion from the reference state into each training
+//! state, found from the captures alone before training starts, in four recorded steps
+//! ([`PoseSteps`], `poses.json`): point-cloud registration ([`super::register`]), alignment by
+//! rendering ([`super::align`]), an ICP polish of both that keeps the better geometric fit, and
+//! a choice among turns about the vertical that the texture decides. `--oracle-poses` takes
+//! the dataset's instead ([`oracle`]).
+
+use super::init::{ObjectRef, PointCloud};
+use super::{align, register};
+use crate::error::Result;
+use crate::io::dataset::{Dataset, Observation};
+use crate::io::work::WorkDir;
+use crate::scene::Rigid;
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+/// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
+/// identities included), as item 4 of stage 1 found them ([`estimate`]): by point-cloud registration (none where it
+/// failed), by the rendered alignment, each of the two polished by ICP in its own basin and
+/// the better fit of the two ([`register::Pair::best_fit`]), and where training starts: that
+/// pose or a polished turn of it about the vertical ([`register::Pair::choose_turn`]).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PoseSteps {
+    pub format: String,
+    pub registered: Vec<Vec<Option<Rigid>>>,
+    pub aligned: Vec<Vec<Rigid>>,
+    /// Of the aligned and the registered pose, each polished ([`register::Pair::polish`]),
+    /// the better geometric fit ([`register::Pair::best_fit`]).
+    pub polished: Vec<Vec<Rigid>>,
+    /// Where training starts: [`register::Pair::choose_turn`] of the polished pose.
+    pub turned: Vec<Vec<Rigid>>,
+}
+
+impl PoseSteps {
+    pub const FORMAT: &'static str = "lightfuse-stage1-poses/3";
+
+    /// The record in `work`, if there is one of `states` x `objects` poses (a record of another
+    /// dataset or an older format counts as none: it only adds figures to the report).
+    pub(super) fn read(work: &WorkDir, states: usize, objects: usize) -> Option<PoseSteps> {
+        let p: PoseSteps = serde_json::from_slice(&std::fs::read(work.poses()).ok()?).ok()?;
+        let fits = |lens: Vec<usize>| lens.len() == states && lens.iter().all(|&l| l == objects);
+        (p.format == Self::FORMAT
+            && fits(p.registered.iter().map(Vec::len).collect())
+            && fits(p.aligned.iter().map(Vec::len).collect())
+            && fits(p.polished.iter().map(Vec::len).collect())
+            && fits(p.turned.iter().map(Vec::len).collect()))
+        .then_some(p)
+    }
+}
+
+/// The dataset's ground-truth poses relative to the reference state (`--oracle-poses`; an
+/// evaluation aid, not a capture's information).
+pub fn oracle(
+    dataset: &Dataset,
+    train_states: &[usize],
+    objects: &[ObjectRef],
+) -> Result<Vec<Vec<Rigid>>> {
+    train_states
+        .iter()
+        .map(|&k| {
+            objects
+                .iter()
+                .map(|o| {
+                    let ref_pose = dataset.object_pose(train_states[0], &o.name)?;
+                    let pose = dataset.object_pose(k, &o.name)?;
+                    Ok(pose.compose(&ref_pose.inverse()))
+                })
+                .collect::<Result<Vec<_>>>()
+        })
+        .collect()
+}
+
+/// Every object's pose in every training state from the captures: `clouds[j]` is state j's
+/// back-projected training views, `train[j]` its observations, `ids` the objects' mask ids.
+/// Training starts from [`PoseSteps::turned`].
+pub fn estimate(clouds: &[PointCloud], train: &[Vec<Observation>], ids: &[u8]) -> PoseSteps {
+    let ropts = register::RegisterOptions::default();
+    // Each object's clouds in the reference state and in state j, prepared once for
+    // the registration, the polish and the choice below.
+    let pairs = register::object_pairs(clouds, ids, &ropts);
+    let reg = register::registrations(&pairs);
+    // The point-cloud registrations are candidates for the analysis-by-synthesis search,
+    // which scores poses by rendering the object into every view of the state.
+    let initial: Vec<Vec<Option<Rigid>>> = reg
+        .iter()
+        .map(|row| row.iter().map(|r| r.map(|r| r.transform)).collect())
+        .collect();
+    let refs = align::median_footprint(&train[0], ids)
+        .map(|voxel| align::reference_surfels(&train[0], ids, voxel));
+    let aligned: Vec<Vec<Rigid>> = match refs {
+        Some(refs) => align::object_poses_by_rendering(
+            &refs,
+            ids,
+            train,
+            &initial,
+            &align::AlignOptions::default(),
+        ),
+        None => initial
+            .iter()
+            .map(|row| row.iter().map(|r| r.unwrap_or(Rigid::IDENTITY)).collect())
+            .collect(),
+    };
+    // Two hypotheses per object and state, each polished in its own basin by ICP
+    // (`register::Pair::polish`): the rendered alignment's pose, which finds the basin
+    // where registration lost the object (study: a thin sign, a chrome bottle upside
+    // down; bedroom: a lamp 65° off) but is biased by ~1-2 cm and a few degrees, and
+    // registration's estimate, right where the alignment's score chose a wrong basin
+    // (study: an untextured Suzanne 136° off). The one whose geometry fits the clouds
+    // best wins (`register::Pair::best_fit`; colour does not vote across lightings).
+    // Then, where the shape ties turns about the vertical (a solid of revolution, a box
+    // four ways), the texture decides between them (`register::Pair::choose_turn`).
+    let limits = register::PolishLimits::default();
+    let turn = register::TurnOptions::default();
+    let (polished, turned): (Vec<Vec<Rigid>>, Vec<Vec<Rigid>>) = aligned
+        .iter()
+        .enumerate()
+        .map(|(j, row)| {
+            row.iter()
+                .enumerate()
+                .map(|(o, pose)| {
+                    let Some(pair) = pairs[j][o].as_ref().filter(|_| j > 0) else {
+                        return (*pose, *pose);
+                    };
+                    // Registration's estimate, where it lies in the basin the
+                    // alignment chose, is a second start there.
+                    let starts: Vec<Rigid> = std::iter::once(*pose).chain(initial[j][o]).collect();
+                    let from_aligned = pair.polish(&starts, &limits).map_or(*pose, |r| r.transform);
+                    let from_registered = initial[j][o]
+                        .map(|r| pair.polish(&[r], &limits).map_or(r, |p| p.transform));
+                    let hypotheses: Vec<Rigid> = std::iter::once(from_aligned)
+                        .chain(from_registered)
+                        .collect();
+                    let polished = pair
+                        .best_fit(&hypotheses)
+                        .map_or(from_aligned, |(k, _)| hypotheses[k]);
+                    let turned = pair
+                        .choose_turn(&polished, Vec3::Y, &limits, &turn)
+                        .transform;
+                    (polished, turned)
+                })
+                .unzip()
+        })
+        .unzip();
+    PoseSteps {
+        format: PoseSteps::FORMAT.into(),
+        registered: initial,
+        aligned,
+        polished,
+        turned,
+    }
+}
