@@ -13,6 +13,7 @@ pub mod shade;
 pub mod spatial;
 pub mod splat;
 pub mod stages;
+pub mod stats;
 pub mod trace;
 
 pub use error::{Error, Result};

@@ -1,7 +1,7 @@
 //! The layer rule of docs/design.md §4, checked on the source text:
 //!
 //! ```text
-//! error, progress, spatial  <  scene  <  kernel, optim  <  splat, trace  <  shade  <  io
+//! error, progress, spatial, stats  <  scene  <  kernel, optim  <  splat, trace  <  shade  <  io
 //!                           <  eval  <  stages  <  cli (the binary's own module)
 //! ```
 //!
@@ -18,10 +18,11 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// The layer of each top-level module of the library (`src/<name>.rs` or `src/<name>/`).
-const LAYERS: [(&str, u32); 15] = [
+const LAYERS: [(&str, u32); 16] = [
     ("error", 0),
     ("progress", 0),
     ("spatial", 0),
+    ("stats", 0),
     ("scene", 1),
     ("kernel", 2),
     ("optim", 2),

@@ -20,6 +20,7 @@
 
 use lightfuse::eval;
 use lightfuse::optim::{self, Adam, Schedule};
+use lightfuse::scene::color::srgb_encode;
 use lightfuse::scene::synthetic::SplitMix;
 use lightfuse::scene::Camera;
 use std::path::Path;
@@ -875,13 +876,13 @@ fn psnr_and_srgb() {
     assert_eq!(eval::psnr(&c, &d), f64::INFINITY);
     assert_eq!(eval::psnr_srgb(&c, &d), f64::INFINITY);
     // sRGB: 0.5 linear → 0.735357 (IEC 61966-2-1), linear segment below 0.0031308.
-    assert!((eval::srgb_encode(0.5) - 0.735_357).abs() < 1e-5);
-    assert!((eval::srgb_encode(0.002) - 0.025_84).abs() < 1e-6);
-    assert_eq!(eval::srgb_encode(1.0), 1.0);
+    assert!((srgb_encode(0.5) - 0.735_357).abs() < 1e-5);
+    assert!((srgb_encode(0.002) - 0.025_84).abs() < 1e-6);
+    assert_eq!(srgb_encode(1.0), 1.0);
     // A dark offset is larger after encoding: 0.01 vs 0.02 linear.
     let e = vec![[0.01f32; 3]; 4];
     let f = vec![[0.02f32; 3]; 4];
-    let d_srgb = (eval::srgb_encode(0.02) - eval::srgb_encode(0.01)) as f64;
+    let d_srgb = (srgb_encode(0.02) - srgb_encode(0.01)) as f64;
     assert!((eval::psnr(&e, &f) - 40.0).abs() < 1e-3);
     assert!((eval::psnr_srgb(&e, &f) + 20.0 * d_srgb.log10()).abs() < 1e-3);
     // sRGB SSIM is SSIM of the encoded images.
@@ -889,8 +890,7 @@ fn psnr_and_srgb() {
     let (w, h) = (20, 15);
     let g = random_image(&mut rng, w * h);
     let k = random_image(&mut rng, w * h);
-    let enc =
-        |i: &[[f32; 3]]| -> Vec<[f32; 3]> { i.iter().map(|p| p.map(eval::srgb_encode)).collect() };
+    let enc = |i: &[[f32; 3]]| -> Vec<[f32; 3]> { i.iter().map(|p| p.map(srgb_encode)).collect() };
     assert_eq!(
         eval::ssim_srgb(&g, &k, w, h),
         eval::ssim(&enc(&g), &enc(&k), w, h)

@@ -5,7 +5,7 @@
 use base64::Engine;
 use glam::{DVec3, Quat, Vec3};
 use lightfuse::io::mesh::read_mesh_scene;
-use lightfuse::scene::mesh::srgb_to_linear;
+use lightfuse::scene::color::srgb_to_linear;
 use lightfuse::scene::surfelize::{
     surfelize, ObjectSelection, SurfelizeOptions, SIGMA_PER_SPACING,
 };

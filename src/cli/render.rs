@@ -19,6 +19,7 @@ use super::{Cli, RenderArgs};
 use lightfuse::error::{Error, Result};
 use lightfuse::io::cameras::read_views;
 use lightfuse::io::exr::Channels;
+use lightfuse::scene::color::srgb_byte;
 use lightfuse::scene::{Environment, Scene, State};
 use lightfuse::shade::denoise::denoise_render;
 use lightfuse::shade::estimator::{Estimator, PixelFilter};
@@ -256,17 +257,6 @@ fn render_baked(cli: &Cli, a: &RenderArgs, scene: &Scene, state: &State) -> Resu
     Ok(())
 }
 
-/// The sRGB OETF (IEC 61966-2-1) of a linear value clamped to [0, 1], as an 8-bit code.
-fn srgb8(v: f32) -> u8 {
-    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
-    let s = if v <= 0.003_130_8 {
-        12.92 * v
-    } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
-    };
-    (s * 255.0 + 0.5) as u8
-}
-
 /// Writes `NAME.exr` (every channel) and `NAME.png` (sRGB preview) into `out`; returns both paths.
 fn write_view(image: &RenderedImage, out: &Path, name: &str) -> Result<[PathBuf; 2]> {
     let exr = out.join(format!("{name}.exr"));
@@ -278,7 +268,11 @@ fn write_view(image: &RenderedImage, out: &Path, name: &str) -> Result<[PathBuf;
 
 fn write_png(image: &RenderedImage, path: &Path) -> Result<()> {
     use image::ImageEncoder;
-    let rgb: Vec<u8> = image.radiance.iter().flat_map(|p| p.map(srgb8)).collect();
+    let rgb: Vec<u8> = image
+        .radiance
+        .iter()
+        .flat_map(|p| p.map(srgb_byte))
+        .collect();
     let mut bytes = Vec::new();
     image::codecs::png::PngEncoder::new(&mut bytes)
         .write_image(

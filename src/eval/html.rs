@@ -124,7 +124,7 @@ pub fn tonemap_latlong(env: &Environment) -> image::RgbImage {
     for (i, p) in small.iter().enumerate() {
         let px = p.map(|v| {
             let x = (v * exposure).max(0.0);
-            byte(crate::eval::metrics::srgb_encode(x / (1.0 + x)))
+            byte(crate::scene::color::srgb_encode(x / (1.0 + x)))
         });
         out.put_pixel((i % w) as u32, (i / w) as u32, image::Rgb(px));
     }
@@ -135,7 +135,7 @@ pub fn tonemap_latlong(env: &Environment) -> image::RgbImage {
 pub fn srgb_image(rgb: &[[f32; 3]], w: u32, h: u32) -> image::RgbImage {
     let mut out = image::RgbImage::new(w, h);
     for (i, p) in rgb.iter().enumerate() {
-        let px = p.map(|v| byte(crate::eval::metrics::srgb_encode(v.clamp(0.0, 1.0))));
+        let px = p.map(crate::scene::color::srgb_byte);
         out.put_pixel(i as u32 % w, i as u32 / w, image::Rgb(px));
     }
     out

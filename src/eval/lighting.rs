@@ -292,7 +292,7 @@ pub fn compare_albedo(pairs: &[([f32; 3], [f32; 3])]) -> AlbedoFigures {
             .filter(|(p, _)| p[c] > 1e-4)
             .map(|(p, t)| t[c] as f64 / p[c] as f64)
             .collect();
-        super::report::median(&mut r)
+        crate::stats::median(&mut r).unwrap_or(f64::NAN)
     });
     let gain = ratio.map(|r| if r.is_finite() { r } else { 1.0 });
     AlbedoFigures {

@@ -2,18 +2,8 @@
 //! sRGB-encoded after clamping); SSIM is exactly the training definition in
 //! [`crate::optim::ssim`] (11×11 Gaussian window, σ = 1.5, zero-padded "same" statistics).
 
+use crate::scene::color::{srgb_byte, srgb_encode};
 use rayon::prelude::*;
-
-/// The sRGB transfer function (IEC 61966-2-1) of a linear value clamped to [0, 1].
-pub fn srgb_encode(x: f32) -> f32 {
-    // In f64 so that 1 encodes to exactly 1.
-    let x = x.clamp(0.0, 1.0) as f64;
-    (if x <= 0.003_130_8 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }) as f32
-}
 
 fn check(a: &[[f32; 3]], b: &[[f32; 3]]) {
     assert!(!a.is_empty(), "metric of an empty image");
@@ -80,7 +70,7 @@ pub fn psnr_hdr(rendered: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
 /// round to the nearest code (what evaluations on 8-bit images compare).
 pub fn srgb8(img: &[[f32; 3]]) -> Vec<[f32; 3]> {
     img.par_iter()
-        .map(|p| p.map(|v| (srgb_encode(if v.is_nan() { 0.0 } else { v }) * 255.0).round() / 255.0))
+        .map(|p| p.map(|v| srgb_byte(v) as f32 / 255.0))
         .collect()
 }
 

@@ -11,4 +11,4 @@ pub mod relight;
 pub mod report;
 pub mod tables;
 
-pub use metrics::{depth_error, psnr, psnr_srgb, srgb_encode, ssim, ssim_srgb, DepthError};
+pub use metrics::{depth_error, psnr, psnr_srgb, ssim, ssim_srgb, DepthError};

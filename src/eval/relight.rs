@@ -40,7 +40,7 @@
 use crate::error::{Error, Result};
 use crate::eval::html;
 use crate::eval::lighting::compare_albedo;
-use crate::eval::metrics::srgb8;
+use crate::eval::report::comparison_strip;
 use crate::eval::tables::{
     markdown, mean_rows, Metrics, Report, RowFigures, RunFigures, Selection, ViewFigures, DENOISER,
     FORMAT,
@@ -381,10 +381,11 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                     );
                     strips.push((
                         out_dir.join(&rel),
-                        strip(
+                        comparison_strip(
                             &truth,
                             &traced[0][0],
                             &[baked_img.as_deref(), traced.get(1).map(|t| &t[0][..])],
+                            None,
                             w,
                             h,
                         ),
@@ -581,32 +582,4 @@ fn environment_pairs(
         });
     }
     Ok(pairs)
-}
-
-/// A strip of 8-bit sRGB images side by side: the truth, LightFuse, the `others` (a row not
-/// rendered is a mid-grey tile, so the columns keep their places), then |LightFuse − truth| × 4.
-fn strip(
-    truth: &[[f32; 3]],
-    lightfuse: &[[f32; 3]],
-    others: &[Option<&[[f32; 3]]>],
-    w: u32,
-    h: u32,
-) -> image::RgbImage {
-    let n = others.len() as u32 + 3;
-    let mut out = image::RgbImage::new(n * w, h);
-    let byte = |v: f32| (v * 255.0).round().clamp(0.0, 255.0) as u8;
-    let (t, l) = (srgb8(truth), srgb8(lightfuse));
-    let enc: Vec<Option<Vec<[f32; 3]>>> = others.iter().map(|i| i.map(srgb8)).collect();
-    for i in 0..(w * h) as usize {
-        let (x, y) = (i as u32 % w, i as u32 / w);
-        out.put_pixel(x, y, image::Rgb(t[i].map(byte)));
-        out.put_pixel(x + w, y, image::Rgb(l[i].map(byte)));
-        for (j, img) in enc.iter().enumerate() {
-            let px = img.as_ref().map_or([128; 3], |img| img[i].map(byte));
-            out.put_pixel(x + (j as u32 + 2) * w, y, image::Rgb(px));
-        }
-        let e = [0, 1, 2].map(|c| byte(4.0 * (l[i][c] - t[i][c]).abs()));
-        out.put_pixel(x + (n - 1) * w, y, image::Rgb(e));
-    }
-    out
 }

@@ -4,11 +4,12 @@
 
 use super::pose::PoseError;
 use crate::error::{Error, Result};
+use crate::scene::color::srgb_byte;
 use serde::Serialize;
 use std::path::Path;
 
 fn srgb(x: f32) -> f64 {
-    super::srgb_encode(x) as f64
+    crate::scene::color::srgb_encode(x) as f64
 }
 
 /// PSNR in sRGB of `color` against the capture `reference` over the pixels where the capture
@@ -31,8 +32,8 @@ pub fn covered_psnr_srgb(
     -10.0 * (se / n.max(1) as f64).max(1e-20).log10()
 }
 
-/// Writes capture | render | 4 × |difference| side by side (a `width`-wide image each), sRGB,
-/// over the pixels where the capture saw a surface (black elsewhere); creates the directory.
+/// Saves a capture | render | 4 × |difference| strip as PNG (8-bit sRGB, [`comparison_strip`])
+/// of the pixels where the capture saw a surface (`reference_depth > 0`); the rest is black.
 pub fn save_comparison(
     color: &[[f32; 3]],
     reference: &[[f32; 3]],
@@ -41,25 +42,49 @@ pub fn save_comparison(
     height: u32,
     path: &Path,
 ) -> Result<()> {
-    let w = width;
-    let mut strip = image::RgbImage::new(3 * w, height);
-    for (i, c) in color.iter().enumerate() {
-        if reference_depth[i] > 0.0 {
-            let (x, y) = (i as u32 % w, i as u32 / w);
-            let (r, g) = (c.map(srgb), reference[i].map(srgb));
-            let byte = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-            strip.put_pixel(x, y, image::Rgb(g.map(byte)));
-            strip.put_pixel(x + w, y, image::Rgb(r.map(byte)));
-            let d = [0, 1, 2].map(|k| byte(4.0 * (r[k] - g[k]).abs()));
-            strip.put_pixel(x + 2 * w, y, image::Rgb(d));
-        }
-    }
+    let shown: Vec<bool> = reference_depth.iter().map(|&z| z > 0.0).collect();
+    let strip = comparison_strip(reference, color, &[], Some(&shown), width, height);
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
     strip
         .save(path)
         .map_err(|e| Error::io(path, std::io::Error::other(e.to_string())))
+}
+
+/// Images side by side, `w` x `h` each, as 8-bit sRGB ([`srgb_byte`]): the truth, the render,
+/// the `others` (a `None` is a mid-grey tile, so the columns keep their places), then
+/// |render − truth| × 4 on the 8-bit values. Where `shown` is false every column is black.
+/// Stage 1's held-out and training views and `lightfuse evaluate`'s per-view strips.
+pub fn comparison_strip(
+    truth: &[[f32; 3]],
+    render: &[[f32; 3]],
+    others: &[Option<&[[f32; 3]]>],
+    shown: Option<&[bool]>,
+    w: u32,
+    h: u32,
+) -> image::RgbImage {
+    let n = others.len() as u32 + 3;
+    let mut out = image::RgbImage::new(n * w, h);
+    for i in 0..(w * h) as usize {
+        if shown.is_some_and(|s| !s[i]) {
+            continue;
+        }
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        let (t, r) = (truth[i].map(srgb_byte), render[i].map(srgb_byte));
+        out.put_pixel(x, y, image::Rgb(t));
+        out.put_pixel(x + w, y, image::Rgb(r));
+        for (j, img) in others.iter().enumerate() {
+            let px = img.map_or([128; 3], |img| img[i].map(srgb_byte));
+            out.put_pixel(x + (j as u32 + 2) * w, y, image::Rgb(px));
+        }
+        let e = [0, 1, 2].map(|c| {
+            let d = 4.0 * (r[c] as f32 - t[c] as f32).abs();
+            d.round().min(255.0) as u8
+        });
+        out.put_pixel(x + (n - 1) * w, y, image::Rgb(e));
+    }
+    out
 }
 
 /// |D̂ − D*| at every pixel with reference depth, in pixel order; where the render saw nothing
@@ -75,13 +100,6 @@ pub fn depth_errors(depth: &[f32], alpha: &[f32], reference_depth: &[f32]) -> Ve
             }
         })
         .collect()
-}
-
-/// Sorts `values` and returns the element at half their count (the upper median), NaN when
-/// there are none.
-pub fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(|a, b| a.total_cmp(b));
-    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// One object's estimated pose in one state against the ground truth, as `report.json` lists it.
@@ -128,8 +146,7 @@ mod tests {
             &[1.5, 2.0, 3.0, 0.0],
         );
         assert_eq!(e, [0.5, 0.5, 3.0]);
-        assert_eq!(median(&mut e), 0.5);
-        assert!(median(&mut []).is_nan());
+        assert_eq!(crate::stats::median(&mut e), Some(0.5));
     }
 
     #[test]

@@ -96,8 +96,8 @@ fn local(depth: &[f32], cam: &Camera, w: usize, h: usize, x: usize, y: usize) ->
 
 /// Camera-to-world rotation (rows) of the camera.
 fn rotation(cam: &Camera) -> [[f32; 3]; 3] {
-    let m = &cam.transform_matrix;
-    std::array::from_fn(|r| [m[r][0], m[r][1], m[r][2]])
+    let r = cam.rotation();
+    std::array::from_fn(|i| r.row(i).to_array())
 }
 
 fn rotate(r: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {

@@ -93,6 +93,22 @@ impl Camera {
         ]
     }
 
+    /// Column `c` of the camera-to-world matrix: 0 the camera's right (+X), 1 its up (+Y), 2
+    /// its back (+Z; it looks down −Z), 3 its centre. The one place a camera's axes are read.
+    pub fn axis(&self, c: usize) -> [f32; 3] {
+        let m = &self.transform_matrix;
+        [m[0][c], m[1][c], m[2][c]]
+    }
+
+    /// The camera-to-world rotation, its columns the camera's axes ([`Camera::axis`] 0-2).
+    pub fn rotation(&self) -> glam::Mat3 {
+        glam::Mat3::from_cols(
+            self.axis(0).into(),
+            self.axis(1).into(),
+            self.axis(2).into(),
+        )
+    }
+
     /// Rotates a camera-space vector into world space.
     pub fn rotate_to_world(&self, v: [f32; 3]) -> [f32; 3] {
         let m = &self.transform_matrix;

@@ -184,15 +184,6 @@ impl MeshTriangle {
     }
 }
 
-/// sRGB transfer function, encoded → linear.
-pub fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
 impl MeshImage {
     /// Raw channel values of texel (x, y) in [0, 1] (floats as stored), RGBA: grey images
     /// fill RGB, a missing alpha is 1.
@@ -236,7 +227,7 @@ impl MeshImage {
         let mut t = self.texel(x, y);
         if srgb {
             for v in t.iter_mut().take(3) {
-                *v = srgb_to_linear(*v);
+                *v = crate::scene::color::srgb_to_linear(*v);
             }
         }
         t

@@ -2,6 +2,7 @@
 //! place the objects and light the scene, layouts, cameras and environment maps.
 
 pub mod camera;
+pub mod color;
 pub mod edit;
 pub mod environment;
 pub mod layout;

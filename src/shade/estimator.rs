@@ -699,8 +699,7 @@ pub struct Pixel {
 
 /// The camera's viewing axis in world space (−Z of the camera-to-world matrix).
 pub fn camera_forward(camera: &Camera) -> Vec3 {
-    let m = &camera.transform_matrix;
-    -Vec3::new(m[0][2], m[1][2], m[2][2]).normalize()
+    -Vec3::from_array(camera.axis(2)).normalize()
 }
 
 impl Estimator<'_> {

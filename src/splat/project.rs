@@ -33,8 +33,7 @@ pub(crate) struct View {
 
 impl View {
     pub fn new(camera: &Camera) -> View {
-        let m = &camera.transform_matrix;
-        let col = |c: usize| Vec3::new(m[0][c], m[1][c], m[2][c]);
+        let col = |c: usize| Vec3::from_array(camera.axis(c));
         let (right, up, fwd) = (col(0), col(1), -col(2));
         let du = right / camera.fl_x;
         let dv = -up / camera.fl_y;

@@ -89,8 +89,7 @@ struct Hit {
 
 /// Renders with the camera's image size.
 pub fn render(components: &[RefComponent], camera: &Camera) -> RefImage {
-    let m = camera.transform_matrix;
-    let col = |c: usize| DVec3::new(m[0][c] as f64, m[1][c] as f64, m[2][c] as f64);
+    let col = |c: usize| DVec3::from_array(camera.axis(c).map(f64::from));
     let (right, up, fwd, o) = (col(0), col(1), -col(2), col(3));
     let (fx, fy, cx, cy) = (
         camera.fl_x as f64,

@@ -40,6 +40,7 @@ use super::register::rotation_grid;
 use crate::io::dataset::Observation;
 use crate::scene::{Camera, Rigid, Surfels};
 use crate::splat::{forward, Placement};
+use crate::stats::median;
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
 
@@ -191,15 +192,7 @@ pub fn median_footprint(observations: &[Observation], object_ids: &[u8]) -> Opti
     if fp.is_empty() {
         return None;
     }
-    Some(median(&mut fp))
-}
-
-fn median(v: &mut [f32]) -> f32 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let m = v.len() / 2;
-    *v.select_nth_unstable_by(m, f32::total_cmp).1
+    median(&mut fp)
 }
 
 /// Log chromaticity (2 components): ln c_i − ⅓ Σ ln c_j for i = r, g.
@@ -211,7 +204,7 @@ fn chroma(c: [f32; 3]) -> [f32; 2] {
 }
 
 fn median2(v: &[[f32; 2]]) -> [f32; 2] {
-    std::array::from_fn(|d| median(&mut v.iter().map(|c| c[d]).collect::<Vec<_>>()))
+    std::array::from_fn(|d| median(&mut v.iter().map(|c| c[d]).collect::<Vec<_>>()).unwrap_or(0.0))
 }
 
 /// The parts of the score of a pose (see the module docs).
@@ -469,7 +462,7 @@ impl<'a> Problem<'a> {
             // of several overlapping splats wins), the same in every view, so only the
             // relative depth (the shape) is compared; silhouettes in the other views pin the
             // translation along this view's axis.
-            let med = median(&mut dz.clone());
+            let med = median(&mut dz.clone()).unwrap_or(0.0);
             for d in dz {
                 let r = (d - med) / sigma_z;
                 zc += (r * r).min(TRUNCATION) as f64;

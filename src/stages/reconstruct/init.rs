@@ -145,16 +145,6 @@ impl Default for BackprojectOptions {
     }
 }
 
-/// Camera-to-world rotation, for normals and viewing directions.
-fn camera_rotation(cam: &Camera) -> Mat3 {
-    let m = &cam.transform_matrix;
-    Mat3::from_cols(
-        Vec3::new(m[0][0], m[1][0], m[2][0]),
-        Vec3::new(m[0][1], m[1][1], m[2][1]),
-        Vec3::new(m[0][2], m[1][2], m[2][2]),
-    )
-}
-
 /// World point of pixel (x, y) at planar depth z: the pixel centre (x + 0.5, y + 0.5) pushed
 /// along its ray to camera-space −Z = z.
 pub fn pixel_to_world(cam: &Camera, x: usize, y: usize, z: f32) -> [f32; 3] {
@@ -174,7 +164,7 @@ pub fn state_cloud(views: &[Observation], opts: &BackprojectOptions) -> PointClo
 pub fn backproject(obs: &Observation, opts: &BackprojectOptions) -> PointCloud {
     let cam = &obs.camera;
     let (w, h) = (cam.w as usize, cam.h as usize);
-    let r = camera_rotation(cam);
+    let r = Camera::rotation(cam);
     let f = (cam.fl_x * cam.fl_y).sqrt();
     let depth = |x: usize, y: usize| obs.depth[y * w + x];
     // Same surface: a valid depth, the same mask id, no depth jump.

@@ -29,6 +29,7 @@ use super::init::{voxel_thin, PointCloud};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::Rigid;
 use crate::spatial::KdTree;
+use crate::stats::median;
 use glam::{DQuat, DVec3, Quat, Vec3};
 use rayon::prelude::*;
 
@@ -151,7 +152,9 @@ pub fn colour_features(rgb: &[[f32; 3]]) -> Vec<[f32; 3]> {
             [2.0 * (l[0] - m), 2.0 * (l[1] - m), LUMINANCE_WEIGHT * m]
         })
         .collect();
-    let med: [f32; 3] = std::array::from_fn(|d| median(raw.iter().map(|f| f[d]).collect()));
+    let med: [f32; 3] = std::array::from_fn(|d| {
+        median(&mut raw.iter().map(|f| f[d]).collect::<Vec<_>>()).unwrap_or(0.0)
+    });
     raw.iter()
         .map(|f| std::array::from_fn(|d| f[d] - med[d]))
         .collect()
@@ -161,14 +164,6 @@ pub fn colour_features(rgb: &[[f32; 3]]) -> Vec<[f32; 3]> {
 /// [`colour_features`] and [`Pair::shading_residual`].
 fn log_rgb(c: [f32; 3]) -> [f32; 3] {
     c.map(|x| x.max(COLOUR_FLOOR).ln())
-}
-
-fn median(mut v: Vec<f32>) -> f32 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let m = v.len() / 2;
-    *v.select_nth_unstable_by(m, f32::total_cmp).1
 }
 
 /// One side of a registration at one spacing.
@@ -494,13 +489,14 @@ impl Pair {
         let diagonal = bbox_diagonal(source);
         let diag = diagonal.max(bbox_diagonal(target));
         let footprint = median(
-            source
+            &mut source
                 .footprint
                 .iter()
                 .chain(&target.footprint)
                 .copied()
-                .collect(),
-        );
+                .collect::<Vec<_>>(),
+        )
+        .unwrap_or(0.0);
         let coarse = (diag * opts.coarse_spacing).max(footprint).max(1e-6);
         let centroid = source
             .position

@@ -26,9 +26,7 @@ use super::train::{render_state, Model, RawComponent, Settings, Trainer};
 use super::{completion, init, segment, support};
 use crate::error::{Error, Result};
 use crate::eval::pose::pose_error;
-use crate::eval::report::{
-    covered_psnr_srgb, depth_errors, median, save_comparison, ObjectPoseError,
-};
+use crate::eval::report::{covered_psnr_srgb, depth_errors, save_comparison, ObjectPoseError};
 use crate::io::dataset::{split, Dataset, Observation, HOLDOUT};
 use crate::io::work::{stage1_view_name, WorkDir};
 use crate::io::AtomicFiles;
@@ -37,6 +35,7 @@ use crate::scene::{Component, Rigid, Scene, State};
 use crate::stages::common::{
     check_resumed_settings, read_checkpoint, resume_or_start, StageLog, StageLoop,
 };
+use crate::stats::median;
 use glam::Vec3;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -492,7 +491,7 @@ fn evaluate(
                 state: state.clone(),
                 view: o.view,
                 psnr_srgb: psnr,
-                median_depth_error_m: median(&mut view_depth),
+                median_depth_error_m: median(&mut view_depth).unwrap_or(f64::NAN),
                 image: name,
             });
         }
@@ -508,7 +507,7 @@ fn evaluate(
             save_comparison(&img.color, &o.rgb, &o.depth, o.camera.w, o.camera.h, &path)?;
         }
     }
-    let median = median(&mut depth_err);
+    let median = median(&mut depth_err).unwrap_or(f64::NAN);
     // Scene extent from the training captures' points.
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for views in train {
