@@ -179,8 +179,90 @@ fn run_environment(
     ))
 }
 
+/// Everything an evaluation reads, read and checked before anything is rendered or written.
+struct Inputs<'d> {
+    d: &'d Dataset,
+    runs: Vec<Run<'d>>,
+    /// Per run: the environment it is lit with, and what that is.
+    envs: Vec<(EnvMap, String)>,
+    relit_file: PathBuf,
+    relit: Scene,
+    baked_file: PathBuf,
+    baked: Scene,
+    /// The dataset's test states that have runs, and each one's arrangement in the relightable
+    /// and in the baked scene.
+    test_states: Vec<usize>,
+    relit_states: Vec<State>,
+    baked_states: Vec<State>,
+}
+
+impl<'d> Inputs<'d> {
+    fn load(opts: &Options, d: &'d Dataset) -> Result<Inputs<'d>> {
+        check_dataset(d)?;
+        let runs = runs(d, opts.selection);
+        if runs.is_empty() {
+            return Err(Error::invalid(
+                &d.file,
+                "states.relight",
+                "expected a test run of the requested --tables (Table 2's are relight runs with a training_state)",
+            ));
+        }
+        let (relit_file, relit) = stage_scene(opts.work.relightable(), d, "lightfuse invert")?;
+        let (baked_file, baked) = stage_scene(opts.work.scene(), d, "lightfuse reconstruct")?;
+        let mut envs = Vec::with_capacity(runs.len());
+        for run in &runs {
+            envs.push(run_environment(run, d, &relit, &relit_file)?);
+            for f in run.frames {
+                let p = d.path(&f.file_path);
+                if !p.is_file() {
+                    return Err(Error::invalid(
+                        &d.file,
+                        "frames.file_path",
+                        format!("expected the Cycles frame {} (missing)", p.display()),
+                    ));
+                }
+            }
+        }
+        let test_states: Vec<usize> = {
+            let mut v: Vec<usize> = runs.iter().map(|r| r.state).collect();
+            v.dedup();
+            v
+        };
+        let relit_states: Vec<State> = test_states
+            .iter()
+            .map(|&k| test_state(&relit, d, k))
+            .collect::<Result<_>>()?;
+        let baked_states: Vec<State> = test_states
+            .iter()
+            .map(|&k| test_state(&baked, d, k))
+            .collect::<Result<_>>()?;
+        Ok(Inputs {
+            d,
+            runs,
+            envs,
+            relit_file,
+            relit,
+            baked_file,
+            baked,
+            test_states,
+            relit_states,
+            baked_states,
+        })
+    }
+}
+
+/// What the evaluation writes besides the report: the PNGs beside it and the page's assets.
+#[derive(Default)]
+struct Pictures {
+    strips: Vec<(PathBuf, image::RgbImage)>,
+    assets: html::Assets,
+}
+
 /// Runs the evaluation and writes `<work>/eval/{eval.json, eval.md, report.html}` (and the
-/// images: [`crate::eval::html`]).
+/// images: [`crate::eval::html`]): the inputs loaded and checked, the median albedo ratio,
+/// every (run, view) rendered and measured ([`render_view`]), the figures pooled into the
+/// tables, and the files written last, so a failed evaluation leaves an earlier `eval/` as it
+/// was.
 pub fn evaluate(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
     if opts.spp == 0 || opts.spp > crate::shade::sobol::MAX_SAMPLES {
@@ -194,82 +276,23 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         crate::shade::denoise::require("or pass --no-denoise to compare the images as rendered")?;
     }
     let d = Dataset::read(&opts.dataset)?;
-    check_dataset(&d)?;
-    let runs = runs(&d, opts.selection);
-    if runs.is_empty() {
-        return Err(Error::invalid(
-            &d.file,
-            "states.relight",
-            "expected a test run of the requested --tables (Table 2's are relight runs with a training_state)",
-        ));
-    }
-    let (relit_file, relit) = stage_scene(opts.work.relightable(), &d, "lightfuse invert")?;
-    let (baked_file, baked) = stage_scene(opts.work.scene(), &d, "lightfuse reconstruct")?;
-    // Everything read and checked before anything is rendered or written.
-    let mut envs = Vec::with_capacity(runs.len());
-    for run in &runs {
-        envs.push(run_environment(run, &d, &relit, &relit_file)?);
-        for f in run.frames {
-            let p = d.path(&f.file_path);
-            if !p.is_file() {
-                return Err(Error::invalid(
-                    &d.file,
-                    "frames.file_path",
-                    format!("expected the Cycles frame {} (missing)", p.display()),
-                ));
-            }
-        }
-    }
-    let test_states: Vec<usize> = {
-        let mut v: Vec<usize> = runs.iter().map(|r| r.state).collect();
-        v.dedup();
-        v
-    };
-    let relit_states: Vec<State> = test_states
-        .iter()
-        .map(|&k| test_state(&relit, &d, k))
-        .collect::<Result<_>>()?;
-    let baked_states: Vec<State> = test_states
-        .iter()
-        .map(|&k| test_state(&baked, &d, k))
-        .collect::<Result<_>>()?;
+    let input = Inputs::load(opts, &d)?;
     let filter = PixelFilter::new(crate::shade::estimator::DEFAULT_FILTER_WIDTH);
-    let trace = TraceScene::new(&relit);
-
-    // The per-channel median albedo ratio, from the pixel-centre records of every test view.
-    let mut pairs = Vec::new();
-    for (si, &k) in test_states.iter().enumerate() {
-        let placed = trace.place_state(&relit_states[si]);
-        let Some(run) = runs.iter().find(|r| r.state == k) else {
-            continue;
-        };
-        for f in run.frames {
-            let Some(rel) = &f.albedo_file_path else {
-                continue;
-            };
-            let truth = d.frame_rgb(rel, &f.camera)?;
-            let p = Primaries::trace(&placed, &filter, &f.camera, 1, opts.seed);
-            let aovs = p.aovs();
-            for ((&z, &a), &t) in aovs.depth.iter().zip(&aovs.albedo).zip(&truth) {
-                if z > 0.0 && t.iter().any(|&v| v > 0.0) {
-                    pairs.push((a, t));
-                }
-            }
-        }
-    }
-    let albedo = compare_albedo(&pairs);
+    let trace = TraceScene::new(&input.relit);
+    let albedo = albedo_ratio(&input, &trace, &filter, opts.seed)?;
     let ratio = albedo
         .ratio
         .map(|r| if r.is_finite() { r as f32 } else { 1.0 });
     let scales = [[1.0; 3], ratio];
 
+    let (runs, d) = (&input.runs, input.d);
     let out_dir = opts.work.eval_dir();
     let total: u64 = runs.iter().map(|r| r.frames.len() as u64).sum();
     let bar = crate::progress::Progress::new(opts.quiet, total, "evaluate");
     let mut rays = 0u64;
     let mut figures: Vec<RunFigures> = runs
         .iter()
-        .zip(&envs)
+        .zip(&input.envs)
         .map(|(r, (_, lit_by))| RunFigures {
             state: d.states[r.state].name.clone(),
             environment: r.environment.to_string(),
@@ -279,13 +302,13 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             mean: BTreeMap::new(),
         })
         .collect();
-    // PNGs beside the report, written with it at the end.
-    let mut strips: Vec<(PathBuf, image::RgbImage)> = Vec::new();
-    let mut assets = html::Assets::default();
-    for (si, &k) in test_states.iter().enumerate() {
-        let placed = trace.place_state(&relit_states[si]);
-        let eps = self_hit_epsilon(&relit, &relit_states[si]);
-        let placements = crate::splat::placements(&baked, &baked_states[si]);
+    let mut pictures = Pictures::default();
+    for (si, &k) in input.test_states.iter().enumerate() {
+        let state = TestState {
+            placed: trace.place_state(&input.relit_states[si]),
+            eps: self_hit_epsilon(&input.relit, &input.relit_states[si]),
+            placements: crate::splat::placements(&input.baked, &input.baked_states[si]),
+        };
         let my_runs: Vec<usize> = (0..runs.len()).filter(|&r| runs[r].state == k).collect();
         let views = my_runs
             .iter()
@@ -301,110 +324,41 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                 };
                 let cam = &frame.camera;
                 if primaries.as_ref().map(|(p, _)| &p.camera) != Some(cam) {
-                    let p = Primaries::trace(&placed, &filter, cam, opts.spp, opts.seed);
+                    let p = Primaries::trace(&state.placed, &filter, cam, opts.spp, opts.seed);
                     rays += p.rays;
                     let aovs = p.aovs();
                     primaries = Some((p, aovs));
                 }
                 let (p, aovs) = primaries.as_ref().expect("traced above");
-                let (w, h) = (cam.w, cam.h);
-                let truth = d.frame_rgb(&frame.file_path, cam)?;
-                let env = &envs[r].0;
-                let bg = environment_image(env, cam);
-                let mut traced = Vec::new();
-                let strategies: &[Strategy] = if opts.selection.no_retracing {
-                    &[Strategy::Full, Strategy::Unshadowed]
-                } else {
-                    &[Strategy::Full]
-                };
-                for &strategy in strategies {
-                    let est = Estimator::new(&placed, env, eps).with_strategy(strategy);
-                    let (mut images, n) = p.shade(&est, &scales);
-                    rays += n;
-                    if opts.denoise {
-                        for (img, s) in images.iter_mut().zip(&scales) {
-                            *img = denoise_render(img, aovs, &bg, s, w as usize, h as usize)?;
-                        }
-                    }
-                    traced.push(images);
-                }
                 if opts.images && v == 0 && r == my_runs[0] {
-                    assets.materials.push(material_view(
-                        &d,
+                    pictures.assets.materials.push(material_view(
+                        d,
                         k,
                         frame,
                         aovs,
                         &out_dir,
-                        &mut strips,
+                        &mut pictures.strips,
                     )?);
                 }
-                let baked_img: Option<Vec<[f32; 3]>> = opts.selection.baked.then(|| {
-                    let splat = crate::splat::forward(&placements, cam).image;
-                    (0..splat.color.len())
-                        .map(|i| {
-                            let t = 1.0 - splat.alpha[i].clamp(0.0, 1.0);
-                            [0, 1, 2].map(|c| splat.color[i][c] + t * bg[i][c])
-                        })
-                        .collect()
-                });
-                let row = |images: &[Vec<[f32; 3]>]| RowFigures {
-                    raw: Metrics::of(&images[0], &truth, w, h),
-                    rescaled: Some(Metrics::of(&images[1], &truth, w, h)),
+                let view = ViewToRender {
+                    run: &runs[r],
+                    env: &input.envs[r].0,
+                    k,
+                    v,
+                    frame,
+                    primaries: p,
+                    aovs,
                 };
-                let mut rows = BTreeMap::new();
-                rows.insert("lightfuse".to_string(), row(&traced[0]));
-                if let Some(img) = &baked_img {
-                    rows.insert(
-                        "baked".to_string(),
-                        RowFigures {
-                            raw: Metrics::of(img, &truth, w, h),
-                            rescaled: None,
-                        },
-                    );
-                }
-                if let Some(images) = traced.get(1) {
-                    rows.insert("no_retracing".to_string(), row(images));
-                }
-                let image = if opts.images {
-                    let run_name = Path::new(runs[r].environment)
-                        .file_stem()
-                        .map(|s| s.to_string_lossy().into_owned())
-                        .unwrap_or_default();
-                    let stem = Path::new(&frame.file_path)
-                        .file_stem()
-                        .map(|s| s.to_string_lossy().into_owned())
-                        .unwrap_or_else(|| format!("{v:03}"));
-                    let rel = format!(
-                        "images/{}/{}/{stem}.png",
-                        d.states[k].name,
-                        runs[r].training_state.unwrap_or(&run_name)
-                    );
-                    strips.push((
-                        out_dir.join(&rel),
-                        comparison_strip(
-                            &truth,
-                            &traced[0][0],
-                            &[baked_img.as_deref(), traced.get(1).map(|t| &t[0][..])],
-                            None,
-                            w,
-                            h,
-                        ),
-                    ));
-                    Some(rel)
-                } else {
-                    None
-                };
+                let (figure, n) =
+                    render_view(opts, d, &state, &view, &scales, &out_dir, &mut pictures)?;
+                rays += n;
                 let status = format!(
                     "{} {} view {v}: LightFuse {:.1} dB",
                     d.states[k].name,
                     runs[r].training_state.unwrap_or(runs[r].environment),
-                    rows["lightfuse"].raw.psnr_srgb_db
+                    figure.rows["lightfuse"].raw.psnr_srgb_db
                 );
-                figures[r].views.push(ViewFigures {
-                    frame: frame.file_path.clone(),
-                    image,
-                    rows,
-                });
+                figures[r].views.push(figure);
                 bar.inc(1);
                 // Without a terminal (a log), a plain line about every tenth of the frames.
                 bar.status(&status);
@@ -412,22 +366,215 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         }
     }
     bar.finish();
-    for f in &mut figures {
+    if opts.images {
+        pictures.assets.environments =
+            environment_pairs(d, &input.relit, &out_dir, &mut pictures.strips)?;
+    }
+    let report = Report {
+        format: FORMAT.into(),
+        dataset: d.file.display().to_string(),
+        relightable: input.relit_file.display().to_string(),
+        baked: input.baked_file.display().to_string(),
+        spp: opts.spp,
+        seed: opts.seed,
+        denoise: if opts.denoise { DENOISER } else { "none" }.into(),
+        selection: opts.selection,
+        albedo_ratio: albedo.ratio,
+        albedo_pixels: albedo.pixels,
+        relighting: BTreeMap::new(),
+        synthesis: BTreeMap::new(),
+        runs: figures,
+        rays,
+        seconds: 0.0,
+    };
+    let report = Report {
+        seconds: t0.elapsed().as_secs_f64(),
+        ..pooled(report)
+    };
+    write(opts, &report, pictures)?;
+    Ok(report)
+}
+
+/// The per-channel median albedo ratio (true / recovered base colour), from the pixel-centre
+/// records of every test view that has an albedo pass ([`compare_albedo`]).
+fn albedo_ratio(
+    input: &Inputs,
+    trace: &TraceScene,
+    filter: &PixelFilter,
+    seed: u32,
+) -> Result<crate::eval::lighting::AlbedoFigures> {
+    let mut pairs = Vec::new();
+    for (si, &k) in input.test_states.iter().enumerate() {
+        let placed = trace.place_state(&input.relit_states[si]);
+        let Some(run) = input.runs.iter().find(|r| r.state == k) else {
+            continue;
+        };
+        for f in run.frames {
+            let Some(rel) = &f.albedo_file_path else {
+                continue;
+            };
+            let truth = input.d.frame_rgb(rel, &f.camera)?;
+            let p = Primaries::trace(&placed, filter, &f.camera, 1, seed);
+            let aovs = p.aovs();
+            for ((&z, &a), &t) in aovs.depth.iter().zip(&aovs.albedo).zip(&truth) {
+                if z > 0.0 && t.iter().any(|&v| v > 0.0) {
+                    pairs.push((a, t));
+                }
+            }
+        }
+    }
+    Ok(compare_albedo(&pairs))
+}
+
+/// A test state's arrangement, ready to render: the relightable scene placed for tracing (with
+/// its self-hit offset) and the baked scene placed for splatting.
+struct TestState<'s> {
+    placed: crate::trace::Placed<'s>,
+    eps: f32,
+    placements: Vec<crate::splat::Placement<'s>>,
+}
+
+/// One (run, view) to render: the run, its environment, the test state `k` and view index
+/// `v`, the Cycles frame, and the view's primary records with their AOVs.
+struct ViewToRender<'a> {
+    run: &'a Run<'a>,
+    env: &'a EnvMap,
+    k: usize,
+    v: usize,
+    frame: &'a Frame,
+    primaries: &'a Primaries,
+    aovs: &'a Aovs,
+}
+
+/// Renders one (run, view) in every selected row (LightFuse and No re-tracing traced from the
+/// shared primaries, raw and rescaled, denoised if asked; Baked splatted over the environment),
+/// measures each against the Cycles frame, and adds its comparison strip to `pictures`.
+/// Returns the view's figures and the rays traced.
+fn render_view(
+    opts: &Options,
+    d: &Dataset,
+    state: &TestState,
+    view: &ViewToRender,
+    scales: &[[f32; 3]; 2],
+    out_dir: &Path,
+    pictures: &mut Pictures,
+) -> Result<(ViewFigures, u64)> {
+    let (frame, p, aovs) = (view.frame, view.primaries, view.aovs);
+    let cam = &frame.camera;
+    let (w, h) = (cam.w, cam.h);
+    let mut rays = 0u64;
+    let truth = d.frame_rgb(&frame.file_path, cam)?;
+    let bg = environment_image(view.env, cam);
+    let mut traced = Vec::new();
+    let strategies: &[Strategy] = if opts.selection.no_retracing {
+        &[Strategy::Full, Strategy::Unshadowed]
+    } else {
+        &[Strategy::Full]
+    };
+    for &strategy in strategies {
+        let est = Estimator::new(&state.placed, view.env, state.eps).with_strategy(strategy);
+        let (mut images, n) = p.shade(&est, scales);
+        rays += n;
+        if opts.denoise {
+            for (img, s) in images.iter_mut().zip(scales) {
+                *img = denoise_render(img, aovs, &bg, s, w as usize, h as usize)?;
+            }
+        }
+        traced.push(images);
+    }
+    let baked_img: Option<Vec<[f32; 3]>> = opts.selection.baked.then(|| {
+        let splat = crate::splat::forward(&state.placements, cam).image;
+        (0..splat.color.len())
+            .map(|i| {
+                let t = 1.0 - splat.alpha[i].clamp(0.0, 1.0);
+                [0, 1, 2].map(|c| splat.color[i][c] + t * bg[i][c])
+            })
+            .collect()
+    });
+    let row = |images: &[Vec<[f32; 3]>]| RowFigures {
+        raw: Metrics::of(&images[0], &truth, w, h),
+        rescaled: Some(Metrics::of(&images[1], &truth, w, h)),
+    };
+    let mut rows = BTreeMap::new();
+    rows.insert("lightfuse".to_string(), row(&traced[0]));
+    if let Some(img) = &baked_img {
+        rows.insert(
+            "baked".to_string(),
+            RowFigures {
+                raw: Metrics::of(img, &truth, w, h),
+                rescaled: None,
+            },
+        );
+    }
+    if let Some(images) = traced.get(1) {
+        rows.insert("no_retracing".to_string(), row(images));
+    }
+    let image = if opts.images {
+        let run_name = Path::new(view.run.environment)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let stem = Path::new(&frame.file_path)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| format!("{:03}", view.v));
+        let rel = format!(
+            "images/{}/{}/{stem}.png",
+            d.states[view.k].name,
+            view.run.training_state.unwrap_or(&run_name)
+        );
+        pictures.strips.push((
+            out_dir.join(&rel),
+            comparison_strip(
+                &truth,
+                &traced[0][0],
+                &[baked_img.as_deref(), traced.get(1).map(|t| &t[0][..])],
+                None,
+                w,
+                h,
+            ),
+        ));
+        Some(rel)
+    } else {
+        None
+    };
+    Ok((
+        ViewFigures {
+            frame: frame.file_path.clone(),
+            image,
+            rows,
+        },
+        rays,
+    ))
+}
+
+/// The report with each run's mean and the tables' pooled means: Table 1 over every
+/// relighting run's images, Table 2 over every synthesis run's.
+fn pooled(mut report: Report) -> Report {
+    for f in &mut report.runs {
         let rows: Vec<&BTreeMap<String, RowFigures>> = f.views.iter().map(|v| &v.rows).collect();
         f.mean = mean_rows(&rows);
     }
-    let pooled = |synthesis: bool| {
-        let rows: Vec<&BTreeMap<String, RowFigures>> = figures
+    let pool = |synthesis: bool| {
+        let rows: Vec<&BTreeMap<String, RowFigures>> = report
+            .runs
             .iter()
             .filter(|f| f.training_state.is_some() == synthesis)
             .flat_map(|f| f.views.iter().map(|v| &v.rows))
             .collect();
         mean_rows(&rows)
     };
-    if opts.images {
-        assets.environments = environment_pairs(&d, &relit, &out_dir, &mut strips)?;
+    Report {
+        relighting: pool(false),
+        synthesis: pool(true),
+        ..report
     }
-    assets.curves = [
+}
+
+/// Writes the strips, `eval.json`, `eval.md` and `report.html` (with the stages' loss curves
+/// read from their logs) together: all or nothing.
+fn write(opts: &Options, report: &Report, mut pictures: Pictures) -> Result<()> {
+    pictures.assets.curves = [
         (
             "Stage 1: reconstruction (eq. reconstruction-objective)",
             opts.work.reconstruct().log(),
@@ -441,26 +588,8 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
     .iter()
     .filter_map(|(title, log)| html::read_curve(title, log))
     .collect();
-    let report = Report {
-        format: FORMAT.into(),
-        dataset: d.file.display().to_string(),
-        relightable: relit_file.display().to_string(),
-        baked: baked_file.display().to_string(),
-        spp: opts.spp,
-        seed: opts.seed,
-        denoise: if opts.denoise { DENOISER } else { "none" }.into(),
-        selection: opts.selection,
-        albedo_ratio: albedo.ratio,
-        albedo_pixels: albedo.pixels,
-        relighting: pooled(false),
-        synthesis: pooled(true),
-        runs: figures,
-        rays,
-        seconds: t0.elapsed().as_secs_f64(),
-    };
-    // Written last: a failed evaluation leaves an earlier eval/ as it was.
     let mut files = crate::io::AtomicFiles::new();
-    for (path, img) in &strips {
+    for (path, img) in &pictures.strips {
         let mut bytes = Vec::new();
         img.write_to(
             &mut std::io::Cursor::new(&mut bytes),
@@ -471,17 +600,16 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
     }
     files.write(
         &opts.work.eval_json(),
-        serde_json::to_string_pretty(&report)
+        serde_json::to_string_pretty(report)
             .expect("the report serialises")
             .as_bytes(),
     )?;
-    files.write(&opts.work.eval_md(), markdown(&report).as_bytes())?;
+    files.write(&opts.work.eval_md(), markdown(report).as_bytes())?;
     files.write(
         &opts.work.report_html(),
-        html::page(&report, &assets).as_bytes(),
+        html::page(report, &pictures.assets).as_bytes(),
     )?;
-    files.commit()?;
-    Ok(report)
+    files.commit()
 }
 
 /// The report's material images of one view: base colour (and the dataset's albedo pass),
