@@ -596,7 +596,7 @@ fn surfelize(cli: &Cli, a: &SurfelizeArgs) -> Result<()> {
     let mesh = lightfuse::io::mesh::read_mesh_scene(&a.mesh)?;
     let mut scene = surfelize(&mesh, &opts)?;
     if let Some(d) = &a.dataset {
-        attach_dataset_states(&mut scene, d, a.env_size)?;
+        lightfuse::io::dataset::attach_ground_truth(&mut scene, d, a.env_size)?;
     }
     lightfuse::io::write_scene(&scene, &a.output)?;
     if cli.json {
@@ -614,98 +614,6 @@ fn surfelize(cli: &Cli, a: &SurfelizeArgs) -> Result<()> {
             parts.join(", ")
         );
     }
-    Ok(())
-}
-
-/// Replaces the scene's states by the dataset's, with ground-truth poses and environments.
-fn attach_dataset_states(
-    scene: &mut lightfuse::scene::Scene,
-    dataset: &std::path::Path,
-    env_size: Option<(usize, usize)>,
-) -> Result<()> {
-    use lightfuse::scene::{EnvRef, Rigid, State};
-    let d = lightfuse::io::dataset::Dataset::read(dataset)?;
-    for c in &scene.components[1..] {
-        if !d.objects.iter().any(|o| o.name == c.name) {
-            return Err(Error::invalid(
-                &d.file,
-                "objects",
-                format!(
-                    "expected an object named {:?} (a component of the mesh scene)",
-                    c.name
-                ),
-            ));
-        }
-    }
-    let mut env_index = std::collections::HashMap::new();
-    let mut environments = Vec::new();
-    let mut load_env = |rel: &str| -> Result<EnvRef> {
-        if let Some(&index) = env_index.get(rel) {
-            return Ok(EnvRef {
-                index,
-                rotation_deg: 0.0,
-            });
-        }
-        let path = d.path(rel);
-        let mut env = lightfuse::io::exr::read_latlong(&path, None)?;
-        if let Some((w, h)) = env_size {
-            env = env.resample(w, h);
-        }
-        environments.push(env);
-        env_index.insert(rel.to_string(), environments.len() - 1);
-        // The generator writes environments already rotated (dataset.json environment_source).
-        Ok(EnvRef {
-            index: environments.len() - 1,
-            rotation_deg: 0.0,
-        })
-    };
-    let mut states = Vec::new();
-    for (k, s) in d.states.iter().enumerate() {
-        let transforms = scene
-            .components
-            .iter()
-            .enumerate()
-            .map(|(i, c)| {
-                if i == 0 {
-                    Ok(Rigid::IDENTITY)
-                } else {
-                    d.object_pose(k, &c.name)
-                }
-            })
-            .collect::<Result<Vec<_>>>()?;
-        if let Some(env) = &s.environment {
-            states.push(State {
-                name: s.name.clone(),
-                transforms: transforms.clone(),
-                environment: Some(load_env(env)?),
-            });
-        } else if s.relight.is_empty() {
-            states.push(State {
-                name: s.name.clone(),
-                transforms: transforms.clone(),
-                environment: None,
-            });
-        }
-        for r in &s.relight {
-            let e = load_env(&r.environment)?;
-            let stem = std::path::Path::new(&r.environment)
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            states.push(State {
-                name: format!("{}_{stem}", s.name),
-                transforms: transforms.clone(),
-                environment: Some(e),
-            });
-        }
-    }
-    let reference = states
-        .iter()
-        .position(|s| s.transforms.iter().all(Rigid::is_identity))
-        .unwrap_or(0);
-    scene.states = states;
-    scene.environments = environments;
-    scene.reference_state = reference;
     Ok(())
 }
 

@@ -537,6 +537,101 @@ fn read_mask(path: &Path, camera: &Camera) -> Result<Vec<u8>> {
     }
     Ok(img.into_luma8().into_raw())
 }
+/// Replaces `scene`'s states by the dataset's, with their ground-truth object poses and
+/// environments (resampled to `env_size` if given): the oracle scene of
+/// `lightfuse surfelize --dataset`, which checks the renderer against Cycles. A test state's
+/// relight runs become a state each (`<state>_<environment stem>`).
+pub fn attach_ground_truth(
+    scene: &mut crate::scene::Scene,
+    dataset: &std::path::Path,
+    env_size: Option<(usize, usize)>,
+) -> Result<()> {
+    use crate::scene::{EnvRef, Rigid, State};
+    let d = Dataset::read(dataset)?;
+    for c in &scene.components[1..] {
+        if !d.objects.iter().any(|o| o.name == c.name) {
+            return Err(Error::invalid(
+                &d.file,
+                "objects",
+                format!(
+                    "expected an object named {:?} (a component of the mesh scene)",
+                    c.name
+                ),
+            ));
+        }
+    }
+    let mut env_index = std::collections::HashMap::new();
+    let mut environments = Vec::new();
+    let mut load_env = |rel: &str| -> Result<EnvRef> {
+        if let Some(&index) = env_index.get(rel) {
+            return Ok(EnvRef {
+                index,
+                rotation_deg: 0.0,
+            });
+        }
+        let path = d.path(rel);
+        let mut env = super::exr::read_latlong(&path, None)?;
+        if let Some((w, h)) = env_size {
+            env = env.resample(w, h);
+        }
+        environments.push(env);
+        env_index.insert(rel.to_string(), environments.len() - 1);
+        // The generator writes environments already rotated (dataset.json environment_source).
+        Ok(EnvRef {
+            index: environments.len() - 1,
+            rotation_deg: 0.0,
+        })
+    };
+    let mut states = Vec::new();
+    for (k, s) in d.states.iter().enumerate() {
+        let transforms = scene
+            .components
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                if i == 0 {
+                    Ok(Rigid::IDENTITY)
+                } else {
+                    d.object_pose(k, &c.name)
+                }
+            })
+            .collect::<Result<Vec<_>>>()?;
+        if let Some(env) = &s.environment {
+            states.push(State {
+                name: s.name.clone(),
+                transforms: transforms.clone(),
+                environment: Some(load_env(env)?),
+            });
+        } else if s.relight.is_empty() {
+            states.push(State {
+                name: s.name.clone(),
+                transforms: transforms.clone(),
+                environment: None,
+            });
+        }
+        for r in &s.relight {
+            let e = load_env(&r.environment)?;
+            let stem = std::path::Path::new(&r.environment)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            states.push(State {
+                name: format!("{}_{stem}", s.name),
+                transforms: transforms.clone(),
+                environment: Some(e),
+            });
+        }
+    }
+    let reference = states
+        .iter()
+        .position(|s| s.transforms.iter().all(Rigid::is_identity))
+        .unwrap_or(0);
+    scene.states = states;
+    scene.environments = environments;
+    scene.reference_state = reference;
+    Ok(())
+}
+
 /// Views with index ≡ 0 (mod HOLDOUT) are withheld from training (every stage holds out the
 /// same views, so their held-out figures are comparable).
 pub const HOLDOUT: usize = 8;
