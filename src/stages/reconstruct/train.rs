@@ -19,9 +19,9 @@
 use crate::io::dataset::Observation;
 use crate::optim::{self, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
-use crate::scene::transform;
+use crate::scene::transform::{self, TransformGrad};
 use crate::scene::{Component, Rigid, Surfels};
-use crate::splat::{self, ImageGrad, Placement};
+use crate::splat::{self, ImageGrad, Placement, SurfelGrads};
 use crate::stages::common::Resumable;
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
@@ -481,6 +481,16 @@ impl Resumable for Trainer {
     }
 }
 
+/// What [`Trainer::step`]'s image terms hand the backward pass: the losses, the image
+/// gradient of every term but the colour (so the lighting-free terms can be back-propagated on
+/// their own), the colour's gradient on the splatted colour, and ∂L/∂M of the colour matrix.
+struct ImageTerms {
+    losses: Losses,
+    grad: ImageGrad,
+    color_grad: Vec<[f32; 3]>,
+    g_colour: [f32; 9],
+}
+
 /// The losses of one iteration (weighted as they enter the objective).
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
 pub struct Losses {
@@ -603,11 +613,52 @@ impl Trainer {
     pub fn step(&mut self, views: &[Vec<&Observation>]) -> Losses {
         let (j, v) = self.pick(views);
         let obs = views[j][v];
-        let s = &self.settings;
         let surfels: Vec<Surfels> = self.model.components.iter().map(|c| c.surfels(j)).collect();
         let placements = self.model.placements(&surfels, j);
         let fwd = splat::forward(&placements, &obs.camera);
-        let img = &fwd.image;
+        let moves_poses = j > 0 && self.iteration >= self.settings.pose_from;
+        // eq. reconstruction-objective's image terms and their gradients.
+        let ImageTerms {
+            mut losses,
+            mut grad,
+            color_grad,
+            g_colour,
+        } = self.image_terms(j, &fwd.image, obs);
+        // The backward pass is linear in `grad`: with the colour gradient still zero, this is
+        // the gradient of the lighting-free terms alone.
+        let geometric = (moves_poses && self.settings.pose_gradient == PoseGradient::Geometry)
+            .then(|| fwd.backward(&grad).transforms);
+        grad.color = color_grad;
+        let mut grads = fwd.backward(&grad);
+        drop(fwd);
+        // Adam: the surfels (with eq. scale-regularization), the state's colour matrix and,
+        // once they move, the object poses.
+        losses.scale = self.update_surfels(j, &surfels, &mut grads.surfels);
+        self.update_colour(j, &g_colour);
+        if moves_poses {
+            self.update_poses(j, geometric.as_ref().unwrap_or(&grads.transforms));
+        }
+        losses.total = losses.rgb
+            + losses.alpha
+            + losses.scale
+            + losses.depth
+            + losses.normal
+            + losses.depth_normal;
+        // The schedule: densification and pruning.
+        self.iteration += 1;
+        let (it, s) = (self.iteration, &self.settings);
+        if it >= s.densify_from && it < s.densify_until && it % s.densify_every == 0 {
+            self.densify_and_prune();
+        }
+        losses
+    }
+
+    /// The image terms of eq. reconstruction-objective for view `obs` of state `j`: L_RGB
+    /// (through the state's colour matrix), eq. alpha-coverage, the depth and normal terms and,
+    /// from `depth_normal_from`, the depth-normal consistency; their gradients on the splatted
+    /// image (the colour's kept apart, see [`ImageTerms`]).
+    fn image_terms(&self, j: usize, img: &splat::SplatImage, obs: &Observation) -> ImageTerms {
+        let s = &self.settings;
         let (w, h) = (img.width as usize, img.height as usize);
         let n = w * h;
         let m = self.model.colour[j];
@@ -625,7 +676,6 @@ impl Trainer {
             .collect();
         let mut grad = ImageGrad::zeros(img.width, img.height);
         let mut losses = Losses::default();
-        let moves_poses = j > 0 && self.iteration >= s.pose_from;
 
         let rgb = if s.display_loss {
             optim::rgb_loss_display(&color, &target, w, h, s.lambda_dssim)
@@ -635,7 +685,6 @@ impl Trainer {
         losses.rgb = rgb.value;
         // Through the colour matrix: ∂L/∂C = Mᵀ ∂L/∂(MC), ∂L/∂M = Σ_p ∂L/∂(MC)_p C_pᵀ.
         let mut g_colour = [0.0f32; 9];
-        // Set on `grad` after the lighting-free terms' own backward pass (if poses take it).
         let color_grad: Vec<[f32; 3]> = rgb
             .grad
             .iter()
@@ -685,19 +734,25 @@ impl Trainer {
                 }
             }
         }
-        // The backward pass is linear in `grad`: with the colour gradient still zero, this is
-        // the gradient of the lighting-free terms alone.
-        let geometric = (moves_poses && s.pose_gradient == PoseGradient::Geometry)
-            .then(|| fwd.backward(&grad).transforms);
-        grad.color = color_grad;
-        let mut grads = fwd.backward(&grad);
-        drop(fwd);
+        ImageTerms {
+            losses,
+            grad,
+            color_grad,
+            g_colour,
+        }
+    }
 
-        // Parameter updates, component by component. The gradients are handed to Adam as flat
-        // views of the backward pass's own buffers (`as_flattened`), not copied: on a room of
-        // ~1 M surfels each copy was tens to hundreds of MB alive at the step's peak.
+    /// Adam on every component's surfels of state `j` (`surfels`: their activated values this
+    /// step; `grads`: the backward pass's), with eq. scale-regularization's gradient added and
+    /// the densification statistics gathered. Returns the scale term's value.
+    fn update_surfels(&mut self, j: usize, surfels: &[Surfels], grads: &mut [SurfelGrads]) -> f32 {
+        let s = &self.settings;
+        let mut scale_loss = 0.0;
+        // The gradients are handed to Adam as flat views of the backward pass's own buffers
+        // (`as_flattened`), not copied: on a room of ~1 M surfels each copy was tens to
+        // hundreds of MB alive at the step's peak.
         for (c, comp) in self.model.components.iter_mut().enumerate() {
-            let sg = &mut grads.surfels[c];
+            let sg = &mut grads[c];
             let act = &surfels[c];
             let len = comp.len();
             if len == 0 {
@@ -705,7 +760,7 @@ impl Trainer {
             }
             // eq. scale-regularization over every surfel of the scene, per component.
             let scale_reg = optim::scale_regularization(&act.scale, s.s_max);
-            losses.scale += s.lambda_scale * scale_reg.value * len as f32;
+            scale_loss += s.lambda_scale * scale_reg.value * len as f32;
             let g_scale: Vec<f32> = (0..len)
                 .flat_map(|i| {
                     [0, 1].map(|k| {
@@ -754,50 +809,40 @@ impl Trainer {
                 self.adam.step(gi, comp.group_mut(g), gr);
             }
         }
-        let total_surfels: usize = self.model.surfel_count();
-        losses.scale /= total_surfels.max(1) as f32;
+        scale_loss / self.model.surfel_count().max(1) as f32
+    }
 
-        // The state's colour matrix (the reference state's is the identity: it fixes the gauge).
+    /// Adam on state `j`'s colour matrix (the reference state's is the identity: it fixes the
+    /// gauge).
+    fn update_colour(&mut self, j: usize, g_colour: &[f32; 9]) {
         if j > 0 {
             let gi = self.adam.group_index(&format!("colour{j}")).unwrap();
-            self.adam.step(gi, &mut self.model.colour[j], &g_colour);
+            self.adam.step(gi, &mut self.model.colour[j], g_colour);
         }
-        // Object poses of non-reference states (the reference state defines the object frame),
-        // each turning about the object's centre (its surfels' mean, placed), so that a rotation
-        // step does not also move it ([`transform::perturb_about`]).
-        if moves_poses {
-            let transforms = geometric.as_ref().unwrap_or(&grads.transforms);
-            for (o, tg) in transforms.iter().skip(1).enumerate() {
-                let pose = self.model.poses[j][o];
-                let pivot = pose.transform_point(self.model.components[o + 1].centroid());
-                let tg = tg.about(&pose, pivot);
-                let p = &mut self.pose_params[j][6 * o..6 * o + 6];
-                let (pt, pr) = p.split_at_mut(3);
-                let gt = self.adam.group_index(&format!("pose{j}.{o}.t")).unwrap();
-                let gr = self.adam.group_index(&format!("pose{j}.{o}.r")).unwrap();
-                self.adam.step(gt, pt, &tg.translation);
-                self.adam.step(gr, pr, &tg.rotation);
-                self.model.poses[j][o] = transform::perturb_about(
-                    &pose,
-                    [pt[0], pt[1], pt[2]],
-                    [pr[0], pr[1], pr[2]],
-                    pivot,
-                );
-                p.iter_mut().for_each(|x| *x = 0.0);
-            }
+    }
+
+    /// Adam on the object poses of non-reference state `j` (the reference state defines the
+    /// object frame), each turning about the object's centre (its surfels' mean, placed), so
+    /// that a rotation step does not also move it ([`transform::perturb_about`]).
+    fn update_poses(&mut self, j: usize, transforms: &[TransformGrad]) {
+        for (o, tg) in transforms.iter().skip(1).enumerate() {
+            let pose = self.model.poses[j][o];
+            let pivot = pose.transform_point(self.model.components[o + 1].centroid());
+            let tg = tg.about(&pose, pivot);
+            let p = &mut self.pose_params[j][6 * o..6 * o + 6];
+            let (pt, pr) = p.split_at_mut(3);
+            let gt = self.adam.group_index(&format!("pose{j}.{o}.t")).unwrap();
+            let gr = self.adam.group_index(&format!("pose{j}.{o}.r")).unwrap();
+            self.adam.step(gt, pt, &tg.translation);
+            self.adam.step(gr, pr, &tg.rotation);
+            self.model.poses[j][o] = transform::perturb_about(
+                &pose,
+                [pt[0], pt[1], pt[2]],
+                [pr[0], pr[1], pr[2]],
+                pivot,
+            );
+            p.iter_mut().for_each(|x| *x = 0.0);
         }
-        losses.total = losses.rgb
-            + losses.alpha
-            + losses.scale
-            + losses.depth
-            + losses.normal
-            + losses.depth_normal;
-        self.iteration += 1;
-        let it = self.iteration;
-        if it >= s.densify_from && it < s.densify_until && it % s.densify_every == 0 {
-            self.densify_and_prune();
-        }
-        losses
     }
 
     /// 2DGS's adaptive density control: clone small surfels and split large ones whose mean
