@@ -30,7 +30,7 @@ use crate::scene::{Camera, Component, Rigid, Surfels};
 use crate::splat;
 use crate::stages::reconstruct::train::RawComponent;
 use crate::stages::reconstruct::{completion, init};
-use crate::trace::{RecordGrad, SurfaceRecord, TraceRay, TraceScene};
+use crate::trace::{Placed, RecordGrad, SurfaceRecord, TraceRay, TraceScene, TraceSurfelGrads};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -303,10 +303,11 @@ impl Refiner {
         out
     }
 
-    /// One iteration: trace a batch of patches of every state, losses, backward, Adam.
+    /// One iteration of eq. geometry-objective: a batch of patches of every state traced, the
+    /// losses of their records, the backward pass, Adam on the surfels (with eq.
+    /// scale-regularization), then the schedule's pruning and hole filling.
     pub fn step(&mut self, states: &[TrainState]) -> Losses {
         let s = self.settings.clone();
-        let sw = s.switches;
         let surfels = self.surfels();
         let refs: Vec<&Surfels> = surfels.iter().collect();
         // Rebuilt every step for a few thousand rays: the build, not the tracing, is the step's
@@ -323,23 +324,8 @@ impl Refiner {
         let per_patch = (side * side) as usize;
         let inv_p = 1.0 / patches.len().max(1) as f32;
 
-        // Rays of every patch, patch-major.
-        let rays: Vec<TraceRay> = patches
-            .iter()
-            .flat_map(|p| {
-                let cam = &states[p.state].views[p.view].camera;
-                (0..per_patch).map(move |i| {
-                    let (x, y) = (p.x0 + i as u32 % side, p.y0 + i as u32 / side);
-                    let (origin, dir) = cam.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
-                    TraceRay {
-                        origin,
-                        dir,
-                        t_min: 0.0,
-                        t_max: f32::INFINITY,
-                    }
-                })
-            })
-            .collect();
+        // Forward: every patch's pixels traced in its state's placement.
+        let rays = patch_rays(states, &patches, side);
         let placed: Vec<_> = states
             .iter()
             .map(|st| scene.place(&st.transforms))
@@ -353,28 +339,8 @@ impl Refiner {
             })
             .collect();
 
-        // Per patch: the losses and dL/d(record sums) of its pixels.
-        // L_α weighs the batch's surface pixels and its environment pixels as two halves: a
-        // view sees far more surface than sky, and a plain mean lets discs grow past silhouettes
-        // (more surface covered, a little sky occluded) until false occlusion sets in.
-        let (mut surface, mut environment) = (0usize, 0usize);
-        for p in &patches {
-            let obs = states[p.state].views[p.view];
-            let w = obs.camera.w as usize;
-            for i in 0..per_patch {
-                let (x, y) = (
-                    p.x0 as usize + i % side as usize,
-                    p.y0 as usize + i / side as usize,
-                );
-                if obs.depth[y * w + x] > 0.0 {
-                    surface += 1;
-                } else {
-                    environment += 1;
-                }
-            }
-        }
-        let half = |n: usize| if n > 0 { 0.5 / n as f32 } else { 0.0 };
-        let coverage_weights = (half(surface), half(environment));
+        // The losses and dL/d(record sums), patch by patch.
+        let coverage_weights = coverage_weights(states, &patches, side);
         let per: Vec<(Losses, Vec<RecordGrad>)> = patches
             .par_iter()
             .enumerate()
@@ -394,30 +360,34 @@ impl Refiner {
             grads.extend(g);
         }
 
-        // Backward, state by state (each its own placement), gradients summed per component.
-        let mut g_surfels: Vec<crate::trace::TraceSurfelGrads> = Vec::new();
-        for (j, pl) in placed.iter().enumerate() {
-            let idx: Vec<usize> = (0..rays.len())
-                .filter(|&i| patches[i / per_patch].state == j)
-                .collect();
-            if idx.is_empty() {
-                continue;
-            }
-            let r: Vec<TraceRay> = idx.iter().map(|&i| rays[i]).collect();
-            let g: Vec<RecordGrad> = idx.iter().map(|&i| grads[i]).collect();
-            let out = pl.composite_backward(&refs, &r, &g, false);
-            if g_surfels.is_empty() {
-                g_surfels = out.surfels;
-            } else {
-                for (acc, add) in g_surfels.iter_mut().zip(out.surfels) {
-                    acc.add(&add);
-                }
-            }
-        }
+        // Backward, then Adam.
+        let g_surfels = backward(&placed, &refs, &rays, &grads, &patches, per_patch);
         drop(placed);
         drop(scene);
+        losses.scale = self.update_surfels(&surfels, &g_surfels);
+        losses.total =
+            losses.alpha + losses.scale + losses.depth + losses.normal + losses.depth_normal;
 
+        // The schedule: pruning and hole filling.
+        self.iteration += 1;
+        if s.prune_every > 0 && self.iteration % s.prune_every == 0 {
+            self.prune();
+        }
+        if s.fill_every > 0 && self.iteration % s.fill_every == 0 && self.iteration <= s.fill_until
+        {
+            self.fill_holes(states);
+        }
+        losses
+    }
+
+    /// Adam on every component's surfels (`surfels`: their activated values this step,
+    /// `g_surfels`: the traced backward pass's gradients), with eq. scale-regularization's
+    /// gradient added (each component weighted by its share of the surfels); non-finite
+    /// gradients are zeroed. Returns the scale term's value.
+    fn update_surfels(&mut self, surfels: &[Surfels], g_surfels: &[TraceSurfelGrads]) -> f32 {
         let total = self.surfel_count().max(1) as f32;
+        let s = &self.settings;
+        let mut scale_loss = 0.0;
         for (c, comp) in self.components.iter_mut().enumerate() {
             let len = comp.len();
             if len == 0 || g_surfels.len() <= c {
@@ -427,9 +397,13 @@ impl Refiner {
             let sg = &g_surfels[c];
             // eq. scale-regularization over every surfel of the scene.
             let scale_reg = optim::scale_regularization(&act.scale, s.s_max);
-            let lambda_s = if sw.scale { s.lambda_scale } else { 0.0 };
+            let lambda_s = if s.switches.scale {
+                s.lambda_scale
+            } else {
+                0.0
+            };
             let share = len as f32 / total;
-            losses.scale += lambda_s * scale_reg.value * share;
+            scale_loss += lambda_s * scale_reg.value * share;
             let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
             let g_pos: Vec<f32> = sg.position.iter().flatten().map(|&v| finite(v)).collect();
             let g_rot: Vec<f32> = sg.rotation.iter().flatten().map(|&v| finite(v)).collect();
@@ -454,17 +428,7 @@ impl Refiner {
                 self.adam.step(gi, group_of(comp, g), gr);
             }
         }
-        losses.total =
-            losses.alpha + losses.scale + losses.depth + losses.normal + losses.depth_normal;
-        self.iteration += 1;
-        if s.prune_every > 0 && self.iteration % s.prune_every == 0 {
-            self.prune();
-        }
-        if s.fill_every > 0 && self.iteration % s.fill_every == 0 && self.iteration <= s.fill_until
-        {
-            self.fill_holes(states);
-        }
-        losses
+        scale_loss
     }
 
     /// Seeds surfels where the captures saw a surface that the traced surfels do not cover
@@ -538,6 +502,85 @@ impl Refiner {
             }
         }
     }
+}
+
+/// The camera rays of every patch's pixels, patch-major (planar rays: depth along them is the
+/// captures' planar depth).
+fn patch_rays(states: &[TrainState], patches: &[Patch], side: u32) -> Vec<TraceRay> {
+    let per_patch = (side * side) as usize;
+    patches
+        .iter()
+        .flat_map(|p| {
+            let cam = &states[p.state].views[p.view].camera;
+            (0..per_patch).map(move |i| {
+                let (x, y) = (p.x0 + i as u32 % side, p.y0 + i as u32 / side);
+                let (origin, dir) = cam.planar_ray(x as f32 + 0.5, y as f32 + 0.5);
+                TraceRay {
+                    origin,
+                    dir,
+                    t_min: 0.0,
+                    t_max: f32::INFINITY,
+                }
+            })
+        })
+        .collect()
+}
+
+/// L_α's weights of a surface pixel and an environment pixel of the batch: the two kinds as two
+/// halves. A view sees far more surface than sky, and a plain mean lets discs grow past
+/// silhouettes (more surface covered, a little sky occluded) until false occlusion sets in.
+fn coverage_weights(states: &[TrainState], patches: &[Patch], side: u32) -> (f32, f32) {
+    let per_patch = (side * side) as usize;
+    let (mut surface, mut environment) = (0usize, 0usize);
+    for p in patches {
+        let obs = states[p.state].views[p.view];
+        let w = obs.camera.w as usize;
+        for i in 0..per_patch {
+            let (x, y) = (
+                p.x0 as usize + i % side as usize,
+                p.y0 as usize + i / side as usize,
+            );
+            if obs.depth[y * w + x] > 0.0 {
+                surface += 1;
+            } else {
+                environment += 1;
+            }
+        }
+    }
+    let half = |n: usize| if n > 0 { 0.5 / n as f32 } else { 0.0 };
+    (half(surface), half(environment))
+}
+
+/// The traced backward pass, state by state (each its own placement), the surfel gradients
+/// summed per component.
+fn backward(
+    placed: &[Placed],
+    refs: &[&Surfels],
+    rays: &[TraceRay],
+    grads: &[RecordGrad],
+    patches: &[Patch],
+    per_patch: usize,
+) -> Vec<TraceSurfelGrads> {
+    let mut g_surfels: Vec<TraceSurfelGrads> = Vec::new();
+    for (j, pl) in placed.iter().enumerate() {
+        let idx: Vec<usize> = (0..rays.len())
+            .filter(|&i| patches[i / per_patch].state == j)
+            .collect();
+        if idx.is_empty() {
+            continue;
+        }
+        let r: Vec<TraceRay> = idx.iter().map(|&i| rays[i]).collect();
+        let g: Vec<RecordGrad> = idx.iter().map(|&i| grads[i]).collect();
+        let out = pl.composite_backward(refs, &r, &g, false);
+        if g_surfels.is_empty() {
+            g_surfels = out.surfels;
+        } else {
+            for (acc, add) in g_surfels.iter_mut().zip(out.surfels) {
+                acc.add(&add);
+            }
+        }
+    }
+    g_surfels
 }
 
 /// The losses of one patch (already divided by the batch's patch count) and dL/d(record sums)
