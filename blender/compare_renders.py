@@ -35,10 +35,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import lfio  # noqa: E402
-
-
-class UserError(Exception):
-    pass
+from lfcli import UserError  # noqa: E402
 
 
 def read_exr(path: str) -> dict[str, np.ndarray]:

@@ -23,10 +23,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 
-import lfcommon as lf  # noqa: E402
-from lfcommon import UserError  # noqa: E402
-
-SCENE_PROP = "lightfuse_scene"
+from lfaxes import bl_to_yup_matrix, rows  # noqa: E402
+from lfblend import open_blend  # noqa: E402
+from lfcli import Parser, UserError, run_main  # noqa: E402
+from lffiles import LAYOUT_FORMAT, write_json  # noqa: E402
+from lfstate import COMPONENT_PROP, ORIGIN_PROP, SCENE_PROP  # noqa: E402
 
 
 def layout_from_blend(where: str) -> dict:
@@ -40,7 +41,7 @@ def layout_from_blend(where: str) -> dict:
     rec = json.loads(sc[SCENE_PROP])
     found = {}
     for ob in bpy.data.objects:
-        name = ob.get("lightfuse_component")
+        name = ob.get(COMPONENT_PROP)
         if name is not None:
             found[name] = ob
     out = {}
@@ -49,11 +50,11 @@ def layout_from_blend(where: str) -> dict:
         ob = found.get(name)
         if ob is None:
             raise UserError(f"{where}: object for component {name!r} is missing (deleted?)")
-        origin = np.asarray(ob.get("lightfuse_origin", [0, 0, 0]), dtype=np.float64)
+        origin = np.asarray(ob.get(ORIGIN_PROP, [0, 0, 0]), dtype=np.float64)
         T0inv = np.eye(4)
         T0inv[:3, 3] = -origin
         m_bl = np.array(ob.matrix_world, dtype=np.float64) @ T0inv
-        m = lf.bl_to_yup_matrix(m_bl)
+        m = bl_to_yup_matrix(m_bl)
         label = f"{where}: object {ob.name!r}" + (f" (component {name!r})" if ob.name != name else "")
         r = m[:3, :3]
         sv = np.linalg.svd(r, compute_uv=False)
@@ -74,13 +75,8 @@ def layout_from_blend(where: str) -> dict:
     return out
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        raise UserError(f"command line: {message}")
-
-
 def main(argv=None):
-    p = _Parser(prog="export_layout.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog="export_layout.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("blend", help="edited .blend from import_scene.py")
     p.add_argument("--out", required=True, help="output layout.json")
     a = p.parse_args(argv)
@@ -88,11 +84,11 @@ def main(argv=None):
         raise UserError(f"{a.blend}: file not found")
     import bpy
 
-    lf.open_blend(a.blend)
+    open_blend(a.blend)
     layout = layout_from_blend(a.blend)
-    lf.write_json(a.out, {"format": lf.LAYOUT_FORMAT, "objects": {k: lf.rows(v) for k, v in layout.items()}})
+    write_json(a.out, {"format": LAYOUT_FORMAT, "objects": {k: rows(v) for k, v in layout.items()}})
     print(f"[export_layout] wrote {a.out}: {len(layout)} objects", flush=True)
 
 
 if __name__ == "__main__":
-    lf.run_main(main)
+    run_main(main)

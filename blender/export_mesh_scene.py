@@ -26,17 +26,15 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-import lfcommon as lf  # noqa: E402
-from lfcommon import UserError  # noqa: E402
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        raise UserError(f"command line: {message}")
+from lfaxes import check_rigid  # noqa: E402
+from lfblend import ID_PROP, apply_layout_bl, get_record, open_blend  # noqa: E402
+from lfcli import Parser, UserError, quiet_stdout, run_main  # noqa: E402
+from lffiles import read_layout  # noqa: E402
+from lfrender import setup_render  # noqa: E402
 
 
 def parse_args(argv):
-    p = _Parser(prog="export_mesh_scene.py", description=__doc__,
+    p = Parser(prog="export_mesh_scene.py", description=__doc__,
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", help="dataset folder (uses DATASET/scene.blend)")
     p.add_argument("--scene", help="scene .blend written by generate.py")
@@ -113,7 +111,7 @@ def bake_object(ob, res: int) -> None:
     sc.cycles.samples = 4
     sc.render.bake.margin = 4
     sc.render.bake.use_clear = True
-    with lf.quiet_stdout():
+    with quiet_stdout():
         bpy.ops.object.bake(type="EMIT", margin=4, use_clear=True)
     img.pack()
     for mat, bsdf, out, old, em, tex in saved:
@@ -140,18 +138,18 @@ def main(argv=None):
         raise UserError(f"--out {a.out}: expected a .glb file name")
     import bpy
 
-    lf.open_blend(scene_path)
-    rec = lf.get_record(scene_path)
+    open_blend(scene_path)
+    rec = get_record(scene_path)
     if a.state:
         if a.state not in rec.get("states", {}):
             raise UserError(f"--state: no state {a.state!r} in {scene_path}; states are "
                             f"{', '.join(rec.get('states', {}))}")
-        layout = {k: lf.check_rigid(v, f"{scene_path}: states.{a.state}.{k}") for k, v in rec["states"][a.state].items()}
+        layout = {k: check_rigid(v, f"{scene_path}: states.{a.state}.{k}") for k, v in rec["states"][a.state].items()}
     elif a.layout:
-        layout = lf.read_layout(a.layout)
+        layout = read_layout(a.layout)
     else:
         layout = {}
-    lf.apply_layout_bl(rec, layout, a.layout or f"state {a.state or 'reference'}")
+    apply_layout_bl(rec, layout, a.layout or f"state {a.state or 'reference'}")
     obj_names = {o["name"]: o["id"] for o in rec["objects"]}
     sc = bpy.context.scene
     for ob in list(bpy.data.objects):
@@ -168,19 +166,19 @@ def main(argv=None):
     bg = bpy.context.view_layer.objects.active
     bg.name = "background"
     bg.data.name = "background"
-    bg["lightfuse_id"] = 0
-    lf.setup_render(4, 0, False)
+    bg[ID_PROP] = 0
+    setup_render(4, 0, False)
     sc.render.use_persistent_data = False
     bake_object(bg, a.bake_res * 4)
     for name, oid in obj_names.items():
         ob = bpy.data.objects[name]
-        ob["lightfuse_id"] = oid
+        ob[ID_PROP] = oid
         ob.data.name = name
         bake_object(ob, a.bake_res)
     out = os.path.abspath(a.out)
     os.makedirs(os.path.dirname(out), exist_ok=True)
     tmp = out + ".tmp.glb"
-    with lf.quiet_stdout():
+    with quiet_stdout():
         bpy.ops.export_scene.gltf(filepath=tmp, export_format="GLB", export_yup=True, export_apply=True,
                                   export_extras=True, export_cameras=False, export_lights=False,
                                   export_materials="EXPORT", export_image_format="AUTO",
@@ -190,4 +188,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    lf.run_main(main)
+    run_main(main)

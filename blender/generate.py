@@ -52,8 +52,13 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 
-import lfcommon as lf  # noqa: E402
-from lfcommon import UserError  # noqa: E402
+import lfio  # noqa: E402
+from lfaxes import bl_to_yup_matrix, cam_bl_to_yup, intrinsics, rows  # noqa: E402
+from lfblend import ID_PROP, SCENE_KEY  # noqa: E402
+from lfcli import Parser, UserError, quiet_stdout, run_main  # noqa: E402
+from lfenv import bundled_hdris, env_mean_luminance, load_env, resolve_hdri, rotate_env, setup_world  # noqa: E402
+from lffiles import DATASET_FORMAT, write_json  # noqa: E402
+from lfrender import frame_seed, make_tmpdir, render_beauty, render_geometry, setup_render, write_geometry  # noqa: E402
 
 # The paper-like presets, the demo, and the second family (scenes.FAMILY: other shapes,
 # materials and camera paths, for measuring on scenes nothing was tuned on).
@@ -65,13 +70,8 @@ DEMO = dict(res="128x96", views=8, states=3, spp=16, relight=5, max_bounces=4, d
 FULL = dict(res="320x240", views=24, states=3, spp=64, relight=5, max_bounces=4, denoise=True)
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        raise UserError(f"command line: {message}")
-
-
 def parse_args(argv):
-    p = _Parser(prog="generate.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog="generate.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default=None, help=f"scene preset: {', '.join(PRESET_NAMES)} (default bedroom)")
     p.add_argument("--demo", action="store_true",
                    help="small demo: preset 'demo', %(d)s unless overridden" % {"d": DEMO})
@@ -128,7 +128,7 @@ def choose_envs(a, rng: random.Random):
         if not names:
             raise UserError(f"--hdri-dir {a.hdri_dir}: no HDRI (.exr/.hdr) found in this folder")
     else:
-        names = lf.bundled_hdris()
+        names = bundled_hdris()
 
     def stem(spec):
         return os.path.splitext(os.path.basename(spec))[0]
@@ -153,9 +153,9 @@ def choose_envs(a, rng: random.Random):
     if len(test) < a.relight:
         raise UserError(f"--relight {a.relight}: only {len(test)} environments not used in training are "
                         "available; lower --relight or pass --test-envs")
-    train = [(lf.resolve_hdri(s, a.hdri_dir, "--train-envs" if a.train_envs else "training environment"), s)
+    train = [(resolve_hdri(s, a.hdri_dir, "--train-envs" if a.train_envs else "training environment"), s)
              for s in train[:a.states]]
-    test = [(lf.resolve_hdri(s, a.hdri_dir, "--test-envs" if a.test_envs else "test environment"), s)
+    test = [(resolve_hdri(s, a.hdri_dir, "--test-envs" if a.test_envs else "test environment"), s)
             for s in test[:a.relight]]
     return train, test
 
@@ -163,12 +163,12 @@ def choose_envs(a, rng: random.Random):
 def make_env(src: str, out_path: str, rng: random.Random, cache: dict) -> dict:
     """Write the rotated, exposure-normalised copy of an HDRI; return its provenance."""
     if src not in cache:
-        cache[src] = lf.load_env(src)
+        cache[src] = load_env(src)
     env = cache[src]
     w = env.shape[1]
     shift = rng.randrange(w)
-    scale = 1.0 / max(lf.env_mean_luminance(env), 1e-6)
-    lf.lfio.write_rgb_exr(out_path, lf.rotate_env(env, shift) * np.float32(scale))
+    scale = 1.0 / max(env_mean_luminance(env), 1e-6)
+    lfio.write_rgb_exr(out_path, rotate_env(env, shift) * np.float32(scale))
     return {"name": os.path.splitext(os.path.basename(src))[0], "rotation_deg": shift * 360.0 / w,
             "scale": scale}
 
@@ -291,11 +291,11 @@ def _run(a, out: str, final: str, t0: float) -> None:
                for i, (name, ob, *_rest) in enumerate(movables)]
     for i, (name, ob, *_r) in enumerate(movables):
         ob.pass_index = i + 1
-        ob["lightfuse_id"] = i + 1
+        ob[ID_PROP] = i + 1
     for ob in bpy.data.objects:
-        if "lightfuse_id" not in ob:
+        if ID_PROP not in ob:
             ob.pass_index = 0
-            ob["lightfuse_id"] = 0
+            ob[ID_PROP] = 0
     sc = bpy.context.scene
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     sc.collection.objects.link(cam)
@@ -307,7 +307,7 @@ def _run(a, out: str, final: str, t0: float) -> None:
     cam.data.clip_end = 1000.0
     sc.render.resolution_x, sc.render.resolution_y = a.w, a.h
     sc.render.resolution_percentage = 100
-    lf.setup_render(a.spp, a.max_bounces, a.denoise, a.threads)
+    setup_render(a.spp, a.max_bounces, a.denoise, a.threads)
 
     if os.path.isdir(out):
         shutil.rmtree(out)
@@ -316,7 +316,7 @@ def _run(a, out: str, final: str, t0: float) -> None:
     arrangements = [scenes.arrange(desc, random.Random(f"{a.seed}-arrange-{k}")) for k in range(K + 1)]
     ref = arrangements[0]
     for o in objects:  # each object's own frame in the reference state (evaluation only)
-        o["reference_pose"] = lf.rows(lf.bl_to_yup_matrix(ref[o["name"]]))
+        o["reference_pose"] = rows(bl_to_yup_matrix(ref[o["name"]]))
 
     def place(arr):
         for name, ob, *_r in movables:
@@ -325,11 +325,11 @@ def _run(a, out: str, final: str, t0: float) -> None:
 
     def poses(arr):
         if arr is ref:  # the reference state: exactly the identity
-            return {name: lf.rows(np.eye(4)) for name, *_r in movables}
-        return {name: lf.rows(lf.bl_to_yup_matrix(arr[name] @ np.linalg.inv(ref[name]))) for name, *_r in movables}
+            return {name: rows(np.eye(4)) for name, *_r in movables}
+        return {name: rows(bl_to_yup_matrix(arr[name] @ np.linalg.inv(ref[name]))) for name, *_r in movables}
 
-    tmp = lf.make_tmpdir()
-    intr = lf.intrinsics(cam.data, a.w, a.h)
+    tmp = make_tmpdir()
+    intr = intrinsics(cam.data, a.w, a.h)
     states = []
     env_cache: dict = {}
     nframes = 0
@@ -367,17 +367,17 @@ def _run(a, out: str, final: str, t0: float) -> None:
             rels = []
             for r_i, run in enumerate(runs):
                 os.makedirs(os.path.join(out, run["prefix"], "rgb"), exist_ok=True)
-                lf.setup_world(os.path.join(out, run["env_rel"]))
+                setup_world(os.path.join(out, run["env_rel"]))
                 frames = []
                 for i, m in enumerate(cams):
                     cam.matrix_world = mathutils.Matrix(m.tolist())
                     rel = frame_paths(run["prefix"], geo_prefix, i)
                     if r_i == 0:
-                        lf.write_geometry(out, rel, lf.render_geometry(tmp))
-                    rgb = lf.render_beauty(tmp, a.spp, lf.frame_seed(run["seed"], i))
-                    lf.lfio.write_rgb_exr(os.path.join(out, rel["file_path"]), rgb)
+                        write_geometry(out, rel, render_geometry(tmp))
+                    rgb = render_beauty(tmp, a.spp, frame_seed(run["seed"], i))
+                    lfio.write_rgb_exr(os.path.join(out, rel["file_path"]), rgb)
                     fr = dict(rel)
-                    fr["transform_matrix"] = lf.rows(lf.cam_bl_to_yup(m))
+                    fr["transform_matrix"] = rows(cam_bl_to_yup(m))
                     fr.update(intr)
                     frames.append(fr)
                     nframes += 1
@@ -400,19 +400,19 @@ def _run(a, out: str, final: str, t0: float) -> None:
 
     # save the scene at the reference state with state0's environment
     place(ref)
-    lf.setup_world(os.path.join(out, states[0]["environment"]))
+    setup_world(os.path.join(out, states[0]["environment"]))
     record = {"version": 1, "preset": a.preset, "objects": objects,
-              "reference": {n: lf.rows(ref[n]) for n, *_r in movables},
+              "reference": {n: rows(ref[n]) for n, *_r in movables},
               "states": {s["name"]: s["object_poses"] for s in states}}
     import json
 
-    sc[lf.SCENE_KEY] = json.dumps(record)
+    sc[SCENE_KEY] = json.dumps(record)
     sc.cycles.seed = 0
     blend = os.path.join(out, "scene.blend")
-    with lf.quiet_stdout():
+    with quiet_stdout():
         bpy.ops.wm.save_as_mainfile(filepath=blend, relative_remap=True, compress=True)
     dataset = {
-        "format": lf.DATASET_FORMAT, "up": "+Y",
+        "format": DATASET_FORMAT, "up": "+Y",
         "objects": objects,
         "scene": "scene.blend",
         "generator": {"tool": "blender/generate.py", "preset": a.preset, "seed": a.seed, "spp": a.spp,
@@ -421,7 +421,7 @@ def _run(a, out: str, final: str, t0: float) -> None:
                       "mask_format": "png8", "depth_channel": "Z"},
         "states": states,
     }
-    lf.write_json(os.path.join(out, "dataset.json"), dataset)
+    write_json(os.path.join(out, "dataset.json"), dataset)
     if os.path.isdir(final):
         shutil.rmtree(final)
     os.replace(out, final)
@@ -430,4 +430,4 @@ def _run(a, out: str, final: str, t0: float) -> None:
 
 
 if __name__ == "__main__":
-    lf.run_main(main)
+    run_main(main)

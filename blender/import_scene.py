@@ -14,10 +14,10 @@ Blender's own glTF importer drops the splat attributes, so the file is read dire
 * the object origin at the centroid of its surfels in the reference state;
 * the background's transforms locked;
 * the states: every object stores its Blender world matrix per state (custom property
-  ``lightfuse_states``); ``apply_state(name)`` (this module, and a text block
-  ``lightfuse_states.py`` saved in the .blend) places the objects as in that state; the
-  scene's ``lightfuse_state`` property names the state shown.  The reference state is applied
-  on import (or ``--state``).
+  ``lightfuse_states``); ``apply_state(name)`` (``lfstate.py``, saved in the .blend as the text
+  block ``lightfuse_states.py``) places the objects as in that state; the scene's
+  ``lightfuse_state`` property names the state shown.  The reference state is applied on
+  import (or ``--state``).
 
 Axes: LightFuse +Y up (x, y, z) -> Blender (x, -z, y).  Edit the objects (move / rotate only),
 then run ``export_layout.py``.
@@ -39,109 +39,14 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 
-import lfcommon as lf  # noqa: E402
-from lfcommon import UserError  # noqa: E402
-
-EXT = "LIGHTFUSE_gaussian_surfels"
-KHR = "KHR_gaussian_splatting"
-SCENE_PROP = "lightfuse_scene"
-_CTYPES = {5126: np.float32, 5125: np.uint32, 5123: np.uint16, 5121: np.uint8, 5122: np.int16, 5120: np.int8}
-_NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
-
-APPLY_STATE_SRC = '''"""LightFuse: place the objects as in a stored state: apply_state("state1")."""
-import json
-import bpy
-import mathutils
-
-
-def apply_state(name):
-    sc = bpy.context.scene
-    rec = json.loads(sc["lightfuse_scene"])
-    if name not in rec["states"]:
-        raise ValueError(f"unknown state {name!r}; states are {rec['states']}")
-    for ob in bpy.data.objects:
-        st = ob.get("lightfuse_states")
-        if st is not None:
-            m = json.loads(st)[name]
-            ob.matrix_world = mathutils.Matrix(m)
-    env = rec.get("state_environments", {}).get(name)
-    world = sc.world
-    if env and world and world.node_tree and "lightfuse_env" in world.node_tree.nodes:
-        import math
-        import os
-        tex = world.node_tree.nodes["lightfuse_env"]
-        path = os.path.join(os.path.dirname(bpy.data.filepath), env[0])
-        tex.image = bpy.data.images.load(path, check_existing=True)
-        tex.inputs["Vector"].links[0].from_node.inputs["Rotation"].default_value = (0, 0, math.radians(env[1]))
-    sc["lightfuse_state"] = name
-
-
-class LIGHTFUSE_OT_apply_state(bpy.types.Operator):
-    """Place the objects as in a LightFuse state"""
-    bl_idname = "lightfuse.apply_state"
-    bl_label = "LightFuse: Apply State"
-    state: bpy.props.StringProperty(name="State")
-
-    def execute(self, context):
-        apply_state(self.state)
-        return {"FINISHED"}
-
-
-try:
-    bpy.utils.register_class(LIGHTFUSE_OT_apply_state)
-except ValueError:
-    pass
-'''
-
-
-def read_accessor(js: dict, binc: bytes | None, base_dir: str, idx, where: str) -> np.ndarray:
-    try:
-        acc = js["accessors"][idx]
-        n = acc["count"]
-        nc = _NCOMP[acc["type"]]
-        dt = np.dtype(_CTYPES[acc["componentType"]]).newbyteorder("<")
-        if "bufferView" not in acc:
-            return np.zeros((n, nc), np.float32)
-        bv = js["bufferViews"][acc["bufferView"]]
-        buf = js["buffers"][bv["buffer"]]
-    except (KeyError, IndexError, TypeError) as e:
-        raise UserError(f"{where}: accessor {idx} is malformed ({e})") from None
-    if "uri" in buf:
-        if buf["uri"].startswith("data:"):
-            raise UserError(f"{where}: data: URIs are not supported")
-        p = os.path.join(base_dir, buf["uri"])
-        try:
-            with open(p, "rb") as f:
-                data = f.read()
-        except OSError:
-            raise UserError(f"{where}: buffer file {p} not found") from None
-    else:
-        if binc is None:
-            raise UserError(f"{where}: buffer {bv['buffer']} has no uri and the file has no BIN chunk")
-        data = binc
-    start = bv.get("byteOffset", 0) + acc.get("byteOffset", 0)
-    stride = bv.get("byteStride", dt.itemsize * nc)
-    need = start + stride * (n - 1) + dt.itemsize * nc if n else start
-    if need > len(data) or need > bv.get("byteOffset", 0) + bv["byteLength"]:
-        raise UserError(f"{where}: accessor {idx} needs {need} bytes, the buffer view/buffer is shorter "
-                        "(truncated file?)")
-    arr = np.lib.stride_tricks.as_strided(
-        np.frombuffer(data, dtype=np.uint8, count=len(data) - start, offset=start),
-        shape=(n, nc * dt.itemsize), strides=(stride, 1)).copy().view(dt).reshape(n, nc)
-    arr = arr.astype(np.float32)
-    if acc.get("normalized") and dt.kind in "ui":
-        arr /= np.iinfo(dt).max
-    if not np.all(np.isfinite(arr)):
-        raise UserError(f"{where}: accessor {idx} contains NaN or infinite values")
-    return arr
-
-
-def quat_to_matrix(q):
-    x, y, z, w = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+import lfstate  # noqa: E402
+from lfaxes import C3, check_rigid, rows, yup_to_bl_matrix  # noqa: E402
+from lfblend import ID_PROP  # noqa: E402
+from lfcli import Parser, UserError, quiet_stdout, run_main  # noqa: E402
+from lfenv import setup_world  # noqa: E402
+from lfgltf import (ATTR_BASE_COLOR, ATTR_METALLIC, ATTR_OPACITY, ATTR_ROTATION, ATTR_ROUGHNESS,  # noqa: E402
+                    ATTR_SCALE, ATTR_SH_PREFIX, EXT, KHR, read_accessor, read_gltf_json, trs_to_matrix)
+from lfstate import COMPONENT_PROP, ORIGIN_PROP, SCENE_PROP, STATES_PROP  # noqa: E402
 
 
 def yup_quat_to_blender_wxyz(q_xyzw: np.ndarray) -> np.ndarray:
@@ -157,7 +62,7 @@ def yup_quat_to_blender_wxyz(q_xyzw: np.ndarray) -> np.ndarray:
 
 def load_scene(path: str) -> dict:
     """Parse and validate a LightFuse glTF scene; arrays in LightFuse (Y-up) coordinates."""
-    js, binc = lf.read_gltf_json(path)
+    js, binc = read_gltf_json(path)
     root = (js.get("extensions") or {}).get(EXT)
     if root is None:
         raise UserError(f"{path}: not a LightFuse scene: no '{EXT}' root extension "
@@ -197,12 +102,12 @@ def load_scene(path: str) -> dict:
         pos = get("POSITION", 3)
         n = len(pos)
         d = {"name": name, "id": cid, "position": pos,
-             "rotation": get(f"{KHR}:ROTATION", 4), "scale": get(f"{KHR}:SCALE", 3),
-             "opacity": get(f"{KHR}:OPACITY", 1)[:, 0],
-             "base_color": get(f"{EXT}:BASE_COLOR", 3, False), "metallic": get(f"{EXT}:METALLIC", 1, False),
-             "roughness": get(f"{EXT}:ROUGHNESS", 1, False), "sh": {}}
+             "rotation": get(ATTR_ROTATION, 4), "scale": get(ATTR_SCALE, 3),
+             "opacity": get(ATTR_OPACITY, 1)[:, 0],
+             "base_color": get(ATTR_BASE_COLOR, 3, False), "metallic": get(ATTR_METALLIC, 1, False),
+             "roughness": get(ATTR_ROUGHNESS, 1, False), "sh": {}}
         for key in attrs:
-            if key.startswith(f"{KHR}:SH_DEGREE_"):
+            if key.startswith(ATTR_SH_PREFIX):
                 parts = key.split(":")[1].split("_")  # SH DEGREE l COEF n
                 d["sh"][f"sh_{parts[2]}_{parts[4]}"] = get(key, 3)
         for k in ("rotation", "scale", "base_color", "metallic", "roughness"):
@@ -235,7 +140,7 @@ def load_scene(path: str) -> dict:
             nd = nodes[ni]
             nm = nd.get("name")
             if nm in names:
-                tr[nm] = lf.check_rigid(lf.trs_to_matrix(nd), f"{path}: scenes[{si}] node {nm!r}")
+                tr[nm] = check_rigid(trs_to_matrix(nd), f"{path}: scenes[{si}] node {nm!r}")
         ext = (s.get("extensions") or {}).get(EXT, {})
         out["states"].append({"name": s.get("name") or f"state{si}", "transforms": tr,
                               "environment": ext.get("environment"),
@@ -312,15 +217,10 @@ def surfel_material():
     return m
 
 
-_BUILD_DIR = [""]  # folder of the .blend being built (not saved yet)
-
-
 def build(scene: dict, state: str | None, path: str, out_blend: str) -> None:
     import bpy
     import mathutils
 
-    _BUILD_DIR[0] = os.path.dirname(out_blend)
-    C3 = lf.C3
     ref_i = scene["reference"] if isinstance(scene["reference"], int) else 0
     state_names = [s["name"] for s in scene["states"]]
     ng = surfel_node_group()
@@ -354,18 +254,18 @@ def build(scene: dict, state: str | None, path: str, out_blend: str) -> None:
         bpy.context.scene.collection.objects.link(ob)
         mod = ob.modifiers.new("LightFuse surfels", "NODES")
         mod.node_group = ng
-        ob["lightfuse_component"] = c["name"]
-        ob["lightfuse_id"] = c["id"]
-        ob["lightfuse_origin"] = [float(x) for x in centre]
+        ob[COMPONENT_PROP] = c["name"]
+        ob[ID_PROP] = c["id"]
+        ob[ORIGIN_PROP] = [float(x) for x in centre]
         T0 = mathutils.Matrix.Translation(centre.tolist())
         states = {}
         for s in scene["states"]:
             m = s["transforms"].get(c["name"], np.eye(4))
             if c["id"] == 0 and np.abs(np.asarray(m) - np.eye(4)).max() > 1e-6:
                 raise UserError(f"{path}: state {s['name']!r} moves the background; it never moves")
-            wm = lf.yup_to_bl_matrix(m) @ np.array(T0)
-            states[s["name"]] = lf.rows(wm)
-        ob["lightfuse_states"] = json.dumps(states)
+            wm = yup_to_bl_matrix(m) @ np.array(T0)
+            states[s["name"]] = rows(wm)
+        ob[STATES_PROP] = json.dumps(states)
         ob.matrix_world = T0
         if c["id"] == 0:
             ob.lock_location = (True, True, True)
@@ -398,39 +298,18 @@ def build(scene: dict, state: str | None, path: str, out_blend: str) -> None:
                                  "components": [{"name": c["name"], "id": c["id"]} for c in scene["components"]],
                                  "environments": scene["environments"]})
     txt = bpy.data.texts.new("lightfuse_states.py")
-    txt.write(APPLY_STATE_SRC)
+    with open(lfstate.__file__, encoding="utf-8") as f:
+        txt.write(f.read())
     txt.use_module = True
-    apply_state(state or state_names[ref_i if ref_i < len(state_names) else 0])
-
-
-def apply_state(name: str) -> None:
-    """Place every object as in the stored state ``name`` (see the module docstring)."""
-    import bpy
-    import mathutils
-
-    sc = bpy.context.scene
-    rec = json.loads(sc[SCENE_PROP])
-    if name not in rec["states"]:
-        raise UserError(f"--state: unknown state {name!r}; the scene's states are {', '.join(rec['states'])}")
-    for ob in bpy.data.objects:
-        st = ob.get("lightfuse_states")
-        if st is not None:
-            ob.matrix_world = mathutils.Matrix(json.loads(st)[name])
-    env = rec.get("state_environments", {}).get(name)
-    if env:
-        base = os.path.dirname(bpy.data.filepath) if bpy.data.filepath else _BUILD_DIR[0]
-        lf.setup_world(os.path.normpath(os.path.join(base, env[0])), env[1])
-    sc["lightfuse_state"] = name
-    bpy.context.view_layer.update()
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        raise UserError(f"command line: {message}")
+    try:
+        lfstate.apply_state(state or state_names[ref_i if ref_i < len(state_names) else 0],
+                            base_dir=os.path.dirname(out_blend), make_world=setup_world)
+    except lfstate.UnknownState as e:
+        raise UserError(f"--state: {e}") from None
 
 
 def main(argv=None):
-    p = _Parser(prog="import_scene.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog="import_scene.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", help="LightFuse scene .glb / .gltf")
     p.add_argument("--state", help="state to show (default: the reference state)")
     p.add_argument("--out", required=True, help="output .blend")
@@ -444,7 +323,7 @@ def main(argv=None):
     out = os.path.abspath(a.out)
     os.makedirs(os.path.dirname(out), exist_ok=True)
     build(scene, a.state, a.scene, out)
-    with lf.quiet_stdout():
+    with quiet_stdout():
         bpy.ops.wm.save_as_mainfile(filepath=out, compress=True)
     n = sum(len(c["position"]) for c in scene["components"])
     print(f"[import_scene] wrote {out}: {len(scene['components'])} components, {n} surfels, "
@@ -452,4 +331,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    lf.run_main(main)
+    run_main(main)

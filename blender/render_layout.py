@@ -32,17 +32,17 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-import lfcommon as lf  # noqa: E402
-from lfcommon import UserError  # noqa: E402
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        raise UserError(f"command line: {message}")
+import lfio  # noqa: E402
+from lfaxes import rows, set_camera  # noqa: E402
+from lfblend import apply_layout_bl, get_record, open_blend  # noqa: E402
+from lfcli import Parser, UserError, run_main  # noqa: E402
+from lfenv import resolve_hdri, setup_world  # noqa: E402
+from lffiles import DATASET_FORMAT, read_json, read_layout, write_json  # noqa: E402
+from lfrender import frame_seed, make_tmpdir, render_beauty, render_geometry, setup_render, write_geometry  # noqa: E402
 
 
 def parse_args(argv):
-    p = _Parser(prog="render_layout.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog="render_layout.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", help="dataset folder (dataset.json + scene.blend)")
     p.add_argument("--scene", help="scene .blend (default: DATASET/scene.blend)")
     p.add_argument("--state", help="take cameras (and defaults) from this dataset state")
@@ -69,10 +69,10 @@ def main(argv=None):
     t0 = time.time()
     ds = None
     if a.dataset:
-        ds = lf.read_json(os.path.join(a.dataset, "dataset.json"), "a LightFuse dataset.json")
-        if ds.get("format") != lf.DATASET_FORMAT:
+        ds = read_json(os.path.join(a.dataset, "dataset.json"), "a LightFuse dataset.json")
+        if ds.get("format") != DATASET_FORMAT:
             raise UserError(f"{os.path.join(a.dataset, 'dataset.json')}: field 'format' must be "
-                            f"{lf.DATASET_FORMAT!r}")
+                            f"{DATASET_FORMAT!r}")
     scene_path = a.scene or (os.path.join(a.dataset, ds.get("scene", "scene.blend")) if ds else None)
     if not scene_path:
         raise UserError("command line: give --scene FILE.blend or --dataset DIR")
@@ -92,7 +92,7 @@ def main(argv=None):
         run = state["relight"][0] if "relight" in state and "frames" not in state else state
         frames = run["frames"]
     if a.cameras:
-        cj = lf.read_json(a.cameras, "a cameras.json")
+        cj = read_json(a.cameras, "a cameras.json")
         frames = cj.get("frames") if isinstance(cj, dict) else cj
         if not isinstance(frames, list) or not frames:
             raise UserError(f"{a.cameras}: field 'frames' must be a non-empty list of frames")
@@ -107,7 +107,7 @@ def main(argv=None):
     seed = a.seed if a.seed is not None else (run or {}).get("render_seed", 0)
     denoise = a.denoise if a.denoise is not None else bool(gen.get("denoise", False))
     if a.env:
-        env_path = lf.resolve_hdri(a.env, None, "--env")
+        env_path = resolve_hdri(a.env, None, "--env")
     elif run and run.get("environment"):
         env_path = os.path.join(a.dataset, run["environment"])
         if not os.path.isfile(env_path):
@@ -117,37 +117,37 @@ def main(argv=None):
 
     import bpy
 
-    lf.open_blend(scene_path)
-    rec = lf.get_record(scene_path)
-    layout = lf.read_layout(a.layout) if a.layout else {}
-    lf.apply_layout_bl(rec, layout, a.layout or "layout")
+    open_blend(scene_path)
+    rec = get_record(scene_path)
+    layout = read_layout(a.layout) if a.layout else {}
+    apply_layout_bl(rec, layout, a.layout or "layout")
     sc = bpy.context.scene
     cam = sc.camera
     if cam is None:
         cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
         sc.collection.objects.link(cam)
         sc.camera = cam
-    lf.setup_render(spp, bounces, denoise, a.threads)
-    lf.setup_world(env_path, a.env_rotation, a.env_strength)
+    setup_render(spp, bounces, denoise, a.threads)
+    setup_world(env_path, a.env_rotation, a.env_strength)
 
     out = os.path.abspath(a.out)
     for sub in ("rgb",) + (() if a.rgb_only else ("depth", "normal", "mask", "albedo")):
         os.makedirs(os.path.join(out, sub), exist_ok=True)
-    tmp = lf.make_tmpdir()
+    tmp = make_tmpdir()
     out_frames = []
     try:
         for i, f in enumerate(frames):
             if not isinstance(f, dict):
                 raise UserError(f"frames[{i}]: expected an object with camera fields")
             f.setdefault("_where", f"frames[{i}]")
-            lf.set_camera(cam, f)
+            set_camera(cam, f)
             rel = {"file_path": f"rgb/{i:03d}.exr"}
             if not a.rgb_only:
                 rel.update({"depth_file_path": f"depth/{i:03d}.exr", "normal_file_path": f"normal/{i:03d}.exr",
                             "mask_path": f"mask/{i:03d}.png", "albedo_file_path": f"albedo/{i:03d}.exr"})
-                lf.write_geometry(out, rel, lf.render_geometry(tmp))
-            rgb = lf.render_beauty(tmp, spp, lf.frame_seed(seed, i))
-            lf.lfio.write_rgb_exr(os.path.join(out, rel["file_path"]), rgb)
+                write_geometry(out, rel, render_geometry(tmp))
+            rgb = render_beauty(tmp, spp, frame_seed(seed, i))
+            lfio.write_rgb_exr(os.path.join(out, rel["file_path"]), rgb)
             fr = dict(rel)
             for k in ("transform_matrix", "fl_x", "fl_y", "cx", "cy", "w", "h"):
                 fr[k] = f[k]
@@ -156,12 +156,12 @@ def main(argv=None):
                 print(f"[render_layout] view {i + 1}/{len(frames)} ({time.time() - t0:.0f} s)", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    lf.write_json(os.path.join(out, "frames.json"), {
+    write_json(os.path.join(out, "frames.json"), {
         "frames": out_frames, "environment": os.path.abspath(env_path), "environment_rotation": a.env_rotation,
-        "layout": {k: lf.rows(v) for k, v in layout.items()}, "spp": spp, "max_bounces": bounces, "denoise": denoise,
+        "layout": {k: rows(v) for k, v in layout.items()}, "spp": spp, "max_bounces": bounces, "denoise": denoise,
         "seed": seed})
     print(f"[render_layout] wrote {len(out_frames)} frames to {out} in {time.time() - t0:.1f} s", flush=True)
 
 
 if __name__ == "__main__":
-    lf.run_main(main)
+    run_main(main)

@@ -12,8 +12,8 @@ import struct
 
 import numpy as np
 
-KHR = "KHR_gaussian_splatting"
-EXT = "LIGHTFUSE_gaussian_surfels"
+from lfgltf import (ATTR_BASE_COLOR, ATTR_METALLIC, ATTR_OPACITY, ATTR_ROTATION, ATTR_ROUGHNESS, ATTR_SCALE, CHUNK_BIN,
+                    CHUNK_JSON, EXT, GLB_MAGIC, KHR, attr_sh)
 
 
 def random_component(name, cid, n, rng, centre=(0, 0, 0)):
@@ -48,13 +48,13 @@ def write_glb(path, components, states, extension=True):
     meshes = []
     for c in components:
         attrs = {"POSITION": add(c["position"], "VEC3"),
-                 f"{KHR}:ROTATION": add(c["rotation"], "VEC4"),
-                 f"{KHR}:SCALE": add(c["scale"], "VEC3"),
-                 f"{KHR}:OPACITY": add(np.asarray(c["opacity"])[:, None], "SCALAR"),
-                 f"{KHR}:SH_DEGREE_0_COEF_0": add(c["sh0"], "VEC3"),
-                 f"{EXT}:BASE_COLOR": add(c["base_color"], "VEC3"),
-                 f"{EXT}:METALLIC": add(np.asarray(c["metallic"])[:, None], "SCALAR"),
-                 f"{EXT}:ROUGHNESS": add(np.asarray(c["roughness"])[:, None], "SCALAR")}
+                 ATTR_ROTATION: add(c["rotation"], "VEC4"),
+                 ATTR_SCALE: add(c["scale"], "VEC3"),
+                 ATTR_OPACITY: add(np.asarray(c["opacity"])[:, None], "SCALAR"),
+                 attr_sh(0, 0): add(c["sh0"], "VEC3"),
+                 ATTR_BASE_COLOR: add(c["base_color"], "VEC3"),
+                 ATTR_METALLIC: add(np.asarray(c["metallic"])[:, None], "SCALAR"),
+                 ATTR_ROUGHNESS: add(np.asarray(c["roughness"])[:, None], "SCALAR")}
         ext = {"kernel": "surfel", "colorSpace": "lin_rec709_display", "projection": "perspective",
                "sortingMethod": "cameraDistance",
                "extensions": {EXT: {"kernel": "gaussianSurfel", "cutoff": 3.0, "maxOpacity": 0.99,
@@ -87,6 +87,6 @@ def write_glb(path, components, states, extension=True):
         blob.append(0)
     total = 12 + 8 + len(jb) + 8 + len(blob)
     with open(path, "wb") as f:
-        f.write(struct.pack("<4sII", b"glTF", 2, total))
-        f.write(struct.pack("<II", len(jb), 0x4E4F534A) + jb)
-        f.write(struct.pack("<II", len(blob), 0x004E4942) + bytes(blob))
+        f.write(struct.pack("<4sII", GLB_MAGIC, 2, total))
+        f.write(struct.pack("<II", len(jb), CHUNK_JSON) + jb)
+        f.write(struct.pack("<II", len(blob), CHUNK_BIN) + bytes(blob))

@@ -11,8 +11,9 @@ import pytest
 
 from bltest import run_script
 
-import lfcommon as lf
 import lfio
+from lfenv import load_env, resolve_hdri, rotate_env, setup_world
+from lfrender import render_beauty, setup_render
 
 
 def _render_env(world_path, rotation_deg, tmpdir):
@@ -27,18 +28,18 @@ def _render_env(world_path, rotation_deg, tmpdir):
     cam.data.lens = 12.0
     cam.matrix_world = mathutils.Matrix.Rotation(math.radians(80), 4, "X") @ mathutils.Matrix.Rotation(0.3, 4, "Y")
     sc.render.resolution_x, sc.render.resolution_y = 48, 32
-    lf.setup_render(4, 1, False)
-    lf.setup_world(world_path, rotation_deg)
-    return lf.render_beauty(str(tmpdir), 4, 11)
+    setup_render(4, 1, False)
+    setup_world(world_path, rotation_deg)
+    return render_beauty(str(tmpdir), 4, 11)
 
 
 def test_rolled_env_equals_cycles_rotation(tmp_path):
-    src = lf.resolve_hdri("forest", None, "test")
-    env = lf.load_env(src)
+    src = resolve_hdri("forest", None, "test")
+    env = load_env(src)
     w = env.shape[1]
     shift = 173
     rolled = tmp_path / "rolled.exr"
-    lfio.write_rgb_exr(str(rolled), lf.rotate_env(env, shift))
+    lfio.write_rgb_exr(str(rolled), rotate_env(env, shift))
     a = _render_env(src, shift * 360.0 / w, tmp_path)
     b = _render_env(str(rolled), 0.0, tmp_path)
     c = _render_env(src, 0.0, tmp_path)

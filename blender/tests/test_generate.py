@@ -12,8 +12,9 @@ import pytest
 
 from bltest import run_script
 
-import lfcommon as lf
 import lfio
+from lfaxes import C3, check_rigid
+from lfblend import ID_PROP, SCENE_KEY
 
 
 def test_tiny_dataset_is_fast_and_valid(tiny_dataset, schema):
@@ -85,7 +86,7 @@ def scene_bvh(tiny_dataset):
     from mathutils.bvhtree import BVHTree
 
     bpy.ops.wm.open_mainfile(filepath=os.path.join(tiny_dataset["path"], "scene.blend"))
-    rec = json.loads(bpy.context.scene[lf.SCENE_KEY])
+    rec = json.loads(bpy.context.scene[SCENE_KEY])
     names = {o["id"]: o["name"] for o in rec["objects"]}
 
     def tree(objs):
@@ -98,7 +99,7 @@ def scene_bvh(tiny_dataset):
             polys += [[base + i for i in p.vertices] for p in ob.data.polygons]
         return BVHTree.FromPolygons(verts, polys, epsilon=0.0), verts, polys, smooth
 
-    static = [ob for ob in bpy.data.objects if ob.type == "MESH" and ob.get("lightfuse_id", 0) == 0]
+    static = [ob for ob in bpy.data.objects if ob.type == "MESH" and ob.get(ID_PROP, 0) == 0]
     t, _v, _p, sm = tree(static)
     trees, smooth = {0: t}, {0: sm}
     raw = {}
@@ -138,8 +139,8 @@ def check_frame(root, fr, poses, bvh, stats):
             Pinv = np.linalg.inv(P)
             o_ref = Pinv[:3, :3] @ o_y + Pinv[:3, 3]
             d_ref = Pinv[:3, :3] @ dy
-            ob = lf.C3.T @ o_ref
-            db = lf.C3.T @ d_ref
+            ob = C3.T @ o_ref
+            db = C3.T @ d_ref
             nrm = np.linalg.norm(db)
             loc, n, pi, t = bvh["trees"][m].ray_cast(Vector(ob), Vector(db / nrm))
             if depth[y, x] == 0:
@@ -147,15 +148,15 @@ def check_frame(root, fr, poses, bvh, stats):
                 # nothing at all along the ray: static scene and every object in this state
                 for oid, tr in bvh["trees"].items():
                     Q = np.eye(4) if oid == 0 else np.linalg.inv(np.array(poses[bvh["names"][oid]]))
-                    oo = lf.C3.T @ (Q[:3, :3] @ o_y + Q[:3, 3])
-                    dd = lf.C3.T @ (Q[:3, :3] @ dy)
+                    oo = C3.T @ (Q[:3, :3] @ o_y + Q[:3, 3])
+                    dd = C3.T @ (Q[:3, :3] @ dy)
                     assert tr.ray_cast(Vector(oo), Vector(dd / np.linalg.norm(dd)))[0] is None
                 stats["miss"] += 1
                 continue
             assert loc is not None, f"pixel ({x},{y}) id {m}: depth {depth[y, x]} but the ray misses"
             planar = t / nrm
             stats["depth_err"].append(abs(planar - depth[y, x]))
-            n_y = P[:3, :3] @ (lf.C3 @ np.array(n[:]))
+            n_y = P[:3, :3] @ (C3 @ np.array(n[:]))
             if np.dot(n_y, dy) > 0:  # face normal seen from behind (open/back faces)
                 n_y = -n_y
             key = "cos_smooth" if bvh["smooth"][m][pi] else "cos"
@@ -203,11 +204,11 @@ def test_recorded_poses_match_placement(tiny_dataset, scene_bvh):
         trees = []
         for oid, name in scene_bvh["names"].items():
             P = np.array(st["object_poses"][name])
-            lf.check_rigid(P, name)
+            check_rigid(P, name)
             R = P[:3, :3]
             assert abs(R[1, 1] - 1) < 1e-6, f"{st['name']}/{name}: not upright"
             verts, polys = scene_bvh["raw"][oid]
-            vy = (verts @ lf.C3.T) @ R.T + P[:3, 3]
+            vy = (verts @ C3.T) @ R.T + P[:3, 3]
             bottom = vy[:, 1].min()
             assert min(abs(bottom - t) for t in tops) < 1e-5, f"{st['name']}/{name} floats at {bottom}"
             if st["name"] != "state0":

@@ -10,7 +10,9 @@ import pytest
 
 from lfgltf_writer import random_component, write_glb
 
-import lfcommon as lf
+from lfaxes import C3, bl_to_yup_matrix, check_rigid, yup_to_bl_matrix
+from lfcli import UserError
+from lffiles import read_layout
 
 
 def _rot_y(deg, t):
@@ -33,16 +35,16 @@ def test_three_layout_formats_agree(tmp_path):
                  '  double3 xformOp:translate = (0.1, 0, 0.2)\n  float3 xformOp:rotateXYZ = (0, 30, 0)\n'
                  '  uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]\n }\n}\n')
     for f in (j, g, u):
-        got = lf.read_layout(str(f))
+        got = read_layout(str(f))
         assert set(got) == {"ball"}, f
         assert np.allclose(got["ball"], want, atol=1e-6), f
 
 
 def test_axis_change_round_trip():
     m = _rot_y(75, (1, 2, 3))
-    assert np.allclose(lf.bl_to_yup_matrix(lf.yup_to_bl_matrix(m)), m)
+    assert np.allclose(bl_to_yup_matrix(yup_to_bl_matrix(m)), m)
     # Blender +Z up is LightFuse +Y; Blender +Y (forward) is LightFuse -Z
-    assert np.allclose(lf.C3 @ [0, 0, 1], [0, 1, 0]) and np.allclose(lf.C3 @ [0, 1, 0], [0, 0, -1])
+    assert np.allclose(C3 @ [0, 0, 1], [0, 1, 0]) and np.allclose(C3 @ [0, 1, 0], [0, 0, -1])
 
 
 @pytest.mark.parametrize("m, msg", [
@@ -53,5 +55,5 @@ def test_axis_change_round_trip():
     ([[1, 0, 0], [0, 1, 0]], "4x4"),
 ])
 def test_check_rigid_refuses(m, msg):
-    with pytest.raises(lf.UserError, match=msg):
-        lf.check_rigid(m, "layout.json: objects.x")
+    with pytest.raises(UserError, match=msg):
+        check_rigid(m, "layout.json: objects.x")

@@ -5,15 +5,19 @@ from __future__ import annotations
 import json
 import math
 import os
-import struct
 
 import numpy as np
 import pytest
 
-from bltest import run_script
+from bltest import REPO, run_script
 from lfgltf_writer import random_component, write_glb
 
-import lfcommon as lf
+import lfio
+import lfstate
+from lfaxes import C3, bl_to_yup_matrix
+from lfblend import ID_PROP, SCENE_KEY
+from lffiles import read_layout_gltf
+from lfgltf import GLB_MAGIC, read_gltf_json, trs_to_matrix
 
 
 def _quat_y(deg):
@@ -41,10 +45,8 @@ def test_import_then_move_then_export_gives_that_transform(lf_glb, tmp_path):
     import bpy
     import mathutils
 
-    import import_scene
-
     bpy.ops.wm.open_mainfile(filepath=str(blend))
-    rec = json.loads(bpy.context.scene["lightfuse_scene"])
+    rec = json.loads(bpy.context.scene[lfstate.SCENE_PROP])
     assert rec["states"] == ["state0", "state1"]
     chair = bpy.data.objects["chair"]
     bg = bpy.data.objects["background"]
@@ -55,7 +57,7 @@ def test_import_then_move_then_export_gives_that_transform(lf_glb, tmp_path):
     for name in ("rotation", "scale", "opacity", "sh_0_0", "base_color", "metallic", "roughness"):
         assert name in me.attributes, name
     co = np.array([chair.matrix_world @ v.co for v in me.vertices])
-    assert np.allclose(co @ lf.C3.T, comp["position"], atol=1e-5)
+    assert np.allclose(co @ C3.T, comp["position"], atol=1e-5)
     op = np.zeros(len(me.vertices), np.float32)
     me.attributes["opacity"].data.foreach_get("value", op)
     assert np.allclose(op, comp["opacity"], atol=1e-6)
@@ -65,16 +67,26 @@ def test_import_then_move_then_export_gives_that_transform(lf_glb, tmp_path):
     for i, qv in enumerate(qa.reshape(-1, 4)):
         R_bl = np.array(mathutils.Quaternion(tuple(qv)).to_matrix())  # (w, x, y, z)
         x, y, z, w = comp["rotation"][i]
-        R_file = lf.trs_to_matrix({"rotation": [x, y, z, w]})[:3, :3]
-        assert np.allclose(lf.C3 @ R_bl, R_file, atol=1e-5)  # every surfel frame, incl. its normal
+        R_file = trs_to_matrix({"rotation": [x, y, z, w]})[:3, :3]
+        assert np.allclose(C3 @ R_bl, R_file, atol=1e-5)  # every surfel frame, incl. its normal
     assert any(m.type == "NODES" for m in chair.modifiers)
-    # states: state1 places the chair by the file's node transform
-    import_scene.apply_state("state1")
-    co1 = np.array([chair.matrix_world @ v.co for v in me.vertices]) @ lf.C3.T
+    # states: state1 places the chair by the file's node transform, by the toolkit's apply_state
+    # and by the same function saved in the .blend as its text block
     t, r = lf_glb["states"][1][1]["chair"]
-    T = lf.trs_to_matrix({"translation": t, "rotation": r})
-    assert np.allclose(co1, comp["position"] @ T[:3, :3].T + T[:3, 3], atol=1e-5)
-    import_scene.apply_state("state0")
+    T = trs_to_matrix({"translation": t, "rotation": r})
+    block = bpy.data.texts["lightfuse_states.py"]
+    with open(lfstate.__file__, encoding="utf-8") as f:
+        assert block.as_string() == f.read()
+    for apply_state in (lfstate.apply_state, block.as_module().apply_state):
+        apply_state("state1")
+        co1 = np.array([chair.matrix_world @ v.co for v in me.vertices]) @ C3.T
+        assert np.allclose(co1, comp["position"] @ T[:3, :3].T + T[:3, 3], atol=1e-5)
+        assert bpy.context.scene[lfstate.STATE_PROP] == "state1"
+        apply_state("state0")
+        co0 = np.array([chair.matrix_world @ v.co for v in me.vertices]) @ C3.T
+        assert np.allclose(co0, comp["position"], atol=1e-5)
+    with pytest.raises(lfstate.UnknownState, match="state7"):
+        lfstate.apply_state("state7")
     # move the chair by script (Blender axes): rotate 40 deg about Z around a pivot, translate
     delta = (mathutils.Matrix.Translation((0.25, -0.4, 0.0)) @ mathutils.Matrix.Rotation(math.radians(40), 4, "Z"))
     chair.matrix_world = delta @ chair.matrix_world
@@ -84,10 +96,10 @@ def test_import_then_move_then_export_gives_that_transform(lf_glb, tmp_path):
     lay = json.loads(out.read_text())
     import jsonschema
 
-    with open(os.path.join(os.path.dirname(lf.HERE), "schemas", "layout.schema.json")) as f:
+    with open(os.path.join(REPO, "schemas", "layout.schema.json")) as f:
         jsonschema.validate(lay, json.load(f))
     assert set(lay["objects"]) == {"chair", "lamp"}
-    expect = lf.bl_to_yup_matrix(np.array(delta))
+    expect = bl_to_yup_matrix(np.array(delta))
     assert np.allclose(np.array(lay["objects"]["chair"]), expect, atol=1e-6)
     assert np.allclose(np.array(lay["objects"]["lamp"]), np.eye(4), atol=1e-6)
 
@@ -120,35 +132,27 @@ def test_import_refuses_non_lightfuse_gltf(lf_glb, tmp_path):
     assert p.returncode == 2 and "junk.glb" in p.stderr and "Traceback" not in p.stderr
 
 
-def _glb_json(path):
-    data = open(path, "rb").read()
-    magic, _v, _n = struct.unpack_from("<4sII", data, 0)
-    assert magic == b"glTF"
-    n, t = struct.unpack_from("<II", data, 12)
-    js = json.loads(data[20:20 + n])
-    blen, _bt = struct.unpack_from("<II", data, 20 + n)
-    return js, data[28 + n:28 + n + blen]
-
-
 def test_export_mesh_scene(tiny_dataset, tmp_path):
     out = tmp_path / "mesh.glb"
     run_script("export_mesh_scene.py", "--dataset", tiny_dataset["path"], "--state", "state1",
                "--bake-res", "32", "--out", out)
-    js, binc = _glb_json(out)
+    assert out.read_bytes()[:4] == GLB_MAGIC
+    js, binc = read_gltf_json(str(out))
+    assert binc is not None
     names = {n["name"]: n for n in js["nodes"]}
     objs = tiny_dataset["json"]["objects"]
     assert set(names) == {"background"} | {o["name"] for o in objs}
     for o in objs:
-        assert names[o["name"]]["extras"]["lightfuse_id"] == o["id"]
+        assert names[o["name"]]["extras"][ID_PROP] == o["id"]
     # Y-up: node transform = state1 placement in LightFuse's world
     import bpy
 
     bpy.ops.wm.open_mainfile(filepath=os.path.join(tiny_dataset["path"], "scene.blend"))
-    rec = json.loads(bpy.context.scene[lf.SCENE_KEY])
+    rec = json.loads(bpy.context.scene[SCENE_KEY])
     st1 = tiny_dataset["json"]["states"][1]["object_poses"]
     for o in objs:
-        want = np.array(st1[o["name"]]) @ lf.bl_to_yup_matrix(np.array(rec["reference"][o["name"]]))
-        got = lf.trs_to_matrix(names[o["name"]])
+        want = np.array(st1[o["name"]]) @ bl_to_yup_matrix(np.array(rec["reference"][o["name"]]))
+        got = trs_to_matrix(names[o["name"]])
         assert np.allclose(got, want, atol=1e-5), o["name"]
     # PBR metallic-roughness on every material; baked base colour textures exist
     mats = js["materials"]
@@ -166,11 +170,11 @@ def test_export_mesh_scene(tiny_dataset, tmp_path):
     bv = js["bufferViews"][img["bufferView"]]
     png = tmp_path / "baked.png"
     png.write_bytes(binc[bv.get("byteOffset", 0):bv.get("byteOffset", 0) + bv["byteLength"]])
-    px = lf.lfio.load_image_bpy(str(png))
+    px = lfio.load_image_bpy(str(png))
     assert px.std() > 0.02
 
 
-RUST_WRITER = os.path.join(os.path.dirname(lf.HERE), "target", "debug", "examples", "write_test_scene")
+RUST_WRITER = os.path.join(REPO, "target", "debug", "examples", "write_test_scene")
 
 
 def test_import_a_scene_written_by_the_rust_writer(tmp_path):
@@ -185,7 +189,7 @@ def test_import_a_scene_written_by_the_rust_writer(tmp_path):
     out = tmp_path / "layout.json"
     run_script("export_layout.py", blend, "--out", out)
     lay = json.loads(out.read_text())["objects"]
-    want = lf.read_layout_gltf(str(glb), scene_index=1)
+    want = read_layout_gltf(str(glb), scene_index=1)
     assert set(lay) == set(want) and lay
     for k in want:
         assert np.allclose(np.array(lay[k]), want[k], atol=2e-6), k

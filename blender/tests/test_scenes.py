@@ -24,7 +24,8 @@ import pytest
 
 from bltest import run_script
 
-import lfcommon as lf
+from lfaxes import C3, bl_to_yup_points
+from lfrender import make_tmpdir, render_geometry, setup_render
 
 
 def _fresh():
@@ -40,7 +41,7 @@ def _surface(ob):
 
     me = ob.data
     me.calc_loop_triangles()
-    verts = lf.bl_to_yup_points(np.array([v.co[:] for v in me.vertices]))
+    verts = bl_to_yup_points(np.array([v.co[:] for v in me.vertices]))
     tris = [tuple(t.vertices) for t in me.loop_triangles]
     return verts, tris, BVHTree.FromPolygons([Vector(v) for v in verts], tris)
 
@@ -100,12 +101,12 @@ def _albedo_turned(ob, tmp, centre, axis, angle, res=64):
         sc.collection.objects.link(cam)
         sc.camera = cam
         cam.data.lens = 50
-    c = Vector(lf.C3.T @ np.asarray(centre, float))
+    c = Vector(C3.T @ np.asarray(centre, float))
     eye = c + Vector((0.55, -0.45, 0.35))
     look = (c - eye).normalized().to_track_quat("-Z", "Y").to_matrix().to_4x4()
-    turn = Matrix.Rotation(angle, 4, Vector(lf.C3.T @ np.asarray(axis, float)))
+    turn = Matrix.Rotation(angle, 4, Vector(C3.T @ np.asarray(axis, float)))
     cam.matrix_world = Matrix.Translation(c) @ turn @ Matrix.Translation(-c) @ Matrix.Translation(eye) @ look
-    g = lf.render_geometry(tmp)
+    g = render_geometry(tmp)
     return g["albedo"], g["mask"] > 0
 
 
@@ -115,10 +116,10 @@ def _appearance_change(kind, centre, axis, angle):
     import scenes
 
     _fresh()
-    lf.setup_render(1, 0, False)
+    setup_render(1, 0, False)
     ob = scenes.build_mesh(kind, scenes.obj_parts(kind), scenes.MODIFIERS.get(kind, ()))
     ob.pass_index = 1
-    tmp = lf.make_tmpdir()
+    tmp = make_tmpdir()
     try:
         a0, m0 = _albedo_turned(ob, tmp, centre, axis, 0.0)
         a1, m1 = _albedo_turned(ob, tmp, centre, axis, angle)
