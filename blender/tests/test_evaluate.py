@@ -9,8 +9,8 @@ import json
 import math
 import shutil
 
+from bltest import ok, run, stages
 from browser import open_page
-from test_reconstruct import ok, run, stages
 
 ROWS = {"lightfuse", "baked", "no_retracing"}
 

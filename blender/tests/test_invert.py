@@ -8,8 +8,7 @@ on the demo and reported in the issue note; `tests/invert.rs` proves recovery on
 `tests/replay.rs` the gradients.)"""
 import json
 
-from test_reconstruct import (a_day_of_training, assert_a_day_carried_over, ok, renamed_object_dataset, run,
-                              stages)
+from bltest import a_day_of_training, assert_a_day_carried_over, ok, renamed_object_dataset, run, stages
 
 
 def test_invert_writes_the_relightable_scene_and_resumes(tiny_dataset, tmp_path):

@@ -2,25 +2,16 @@
 (export_mesh_scene.py), surfelized by `lightfuse surfelize --dataset`, carries every state with
 the ground-truth object poses, so each object lands where Blender placed it in that state."""
 import json
-import os
-import subprocess
 
 import numpy as np
 
-from bltest import REPO, run_script
+from bltest import ok, run_script
 
-LIGHTFUSE = os.environ.get("LIGHTFUSE_BIN", os.path.join(REPO, "target", "release", "lightfuse"))
 SPACING = 0.02
 
 
-def lf(*args):
-    p = subprocess.run([LIGHTFUSE, *map(str, args)], capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    return p.stdout
-
-
 def info(path):
-    return json.loads(lf("info", "--json", path))
+    return json.loads(ok("info", "--json", path))
 
 
 def test_oracle_scene_places_objects_like_blender(tiny_dataset, tmp_path):
@@ -29,8 +20,8 @@ def test_oracle_scene_places_objects_like_blender(tiny_dataset, tmp_path):
     run_script("export_mesh_scene.py", "--dataset", ds, "--out", ref, "--bake-res", "32")
     run_script("export_mesh_scene.py", "--dataset", ds, "--state", "state1", "--out", moved, "--bake-res", "32")
     oracle = tmp_path / "oracle.glb"
-    lf("surfelize", ref, "-o", oracle, "--spacing", SPACING, "--dataset", ds, "--env-size", "64x32")
-    lf("surfelize", moved, "-o", tmp_path / "s1.glb", "--spacing", SPACING)
+    ok("surfelize", ref, "-o", oracle, "--spacing", SPACING, "--dataset", ds, "--env-size", "64x32")
+    ok("surfelize", moved, "-o", tmp_path / "s1.glb", "--spacing", SPACING)
     o = info(oracle)
     names = [s["name"] for s in o["states"]]
     train = [s["name"] for s in tiny_dataset["json"]["states"] if s["split"] == "train"]

@@ -6,65 +6,9 @@ reported in the issue note; this tiny 32x32 dataset only proves the plumbing.)""
 import json
 import os
 import shutil
-import subprocess
 from pathlib import Path
 
-from bltest import REPO
-
-LIGHTFUSE = os.environ.get("LIGHTFUSE_BIN", os.path.join(REPO, "target", "release", "lightfuse"))
-
-
-def run(*args):
-    return subprocess.run([LIGHTFUSE, *map(str, args)], capture_output=True, text=True)
-
-
-def ok(*args):
-    p = run(*args)
-    assert p.returncode == 0, f"lightfuse {' '.join(map(str, args))}:\n{p.stderr[-3000:]}"
-    return p.stdout
-
-
-def a_day_of_training(checkpoint, report):
-    """Writes a day's training time into a stage's checkpoint, as after a run over several
-    sittings, once checked that it holds what the report of the run that wrote it says."""
-    c = json.loads(checkpoint.read_text())
-    assert 0 < report["training_seconds"] <= report["seconds"]
-    assert c["training_seconds"] == report["training_seconds"]
-    c["training_seconds"] = 86400.0
-    checkpoint.write_text(json.dumps(c))
-
-
-def assert_a_day_carried_over(resumed, log, resumed_from):
-    """A run resumed after `a_day_of_training`: its report and the log lines it wrote (after
-    iteration `resumed_from`) count the day and this run's training on top of it."""
-    assert 86400.0 < resumed["training_seconds"] < 86400.0 + resumed["seconds"]
-    for line in log:
-        assert (line["training_seconds"] > 86400.0) == (line["iteration"] > resumed_from), line
-    assert log[-1]["training_seconds"] == resumed["training_seconds"]
-
-
-def stages(tiny_dataset, tmp_path, refine=False):
-    """A work folder with stage 1 (20 iterations) and, with `refine`, stage 2 (5) on the tiny
-    dataset: the starting point of the later stages' tests."""
-    work = tmp_path / "work"
-    ok("--quiet", "reconstruct", tiny_dataset["path"], "-o", work, "--iterations", "20")
-    if refine:
-        ok("--quiet", "refine", tiny_dataset["path"], work, "--iterations", "5")
-    return work
-
-
-def renamed_object_dataset(ds, dest, name="teapot"):
-    """A copy of dataset folder `ds` at `dest` whose first object is called `name` (its poses
-    too): a dataset that does not match a scene reconstructed from `ds`."""
-    shutil.copytree(ds, dest)
-    d = json.loads((dest / "dataset.json").read_text())
-    old = d["objects"][0]["name"]
-    d["objects"][0]["name"] = name
-    for s in d["states"]:
-        if s.get("object_poses"):
-            s["object_poses"] = {(name if k == old else k): v for k, v in s["object_poses"].items()}
-    (dest / "dataset.json").write_text(json.dumps(d))
-    return dest
+from bltest import a_day_of_training, assert_a_day_carried_over, ok, run
 
 
 def test_reconstruct_writes_a_scene_and_resumes(tiny_dataset, tmp_path):

@@ -6,8 +6,7 @@ the demo dataset and reported in the issue note; this tiny 32x32 dataset proves 
 `tests/refine.rs` proves the repair.)"""
 import json
 
-from test_reconstruct import (a_day_of_training, assert_a_day_carried_over, ok, renamed_object_dataset, run,
-                              stages)
+from bltest import a_day_of_training, assert_a_day_carried_over, ok, renamed_object_dataset, run, stages
 
 FIGURES = {"depth_median_m", "normal_mean_deg", "holes", "false_occlusion", "light_leaks",
            "surface_pixels", "environment_pixels", "blocked_rays", "leaking_rays"}

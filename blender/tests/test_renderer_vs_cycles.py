@@ -26,17 +26,12 @@ import sys
 
 import pytest
 
-from bltest import BLENDER_DIR, REPO, run_script
+from bltest import BLENDER_DIR, ok, run_script
 
-LIGHTFUSE = os.environ.get("LIGHTFUSE_BIN", os.path.join(REPO, "target", "release", "lightfuse"))
+from lfstate import COMPONENT_PROP
+
 CYCLES_SPP = 512
 LIGHTFUSE_SPP = 128
-
-
-def lf(*args):
-    p = subprocess.run([LIGHTFUSE, *map(str, args)], capture_output=True, text=True)
-    assert p.returncode == 0, f"lightfuse {' '.join(map(str, args))}:\n{p.stderr[-3000:]}"
-    return p.stdout
 
 
 def compare(ref, test):
@@ -55,8 +50,8 @@ def oracle(tmp_path_factory):
     mesh = root / "mesh_scene.glb"
     run_script("export_mesh_scene.py", "--dataset", ds, "--out", mesh)
     scene = root / "scene.glb"
-    lf("surfelize", mesh, "-o", scene, "--spacing", "0.005", "--dataset", ds, "--env-size", "256x128")
-    lf("convert", scene, root / "scene.gltf")
+    ok("surfelize", mesh, "-o", scene, "--spacing", "0.005", "--dataset", ds, "--env-size", "256x128")
+    ok("convert", scene, root / "scene.gltf")
     env_dir = root / "scene.env"
     env = next(env_dir / n for n in sorted(os.listdir(env_dir)) if n.endswith("_state0.exr"))
     return {"root": root, "dataset": ds, "scene": scene, "env": env}
@@ -67,7 +62,7 @@ def test_one_bounce_render_matches_cycles(oracle):
     cy, ours = root / "cycles", root / "lightfuse"
     run_script("render_layout.py", "--dataset", ds, "--state", "state0", "--env", oracle["env"],
                "--spp", CYCLES_SPP, "--max-bounces", "1", "--no-denoise", "--rgb-only", "--quiet", "--out", cy)
-    lf("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", LIGHTFUSE_SPP,
+    ok("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", LIGHTFUSE_SPP,
        "--out", ours)
     r = compare(cy, ours)
     print(f"LightFuse vs Cycles, state0, 8 views: {r['psnr_all']:.2f} dB, background {r['psnr_background']:.2f} dB")
@@ -77,17 +72,17 @@ def test_one_bounce_render_matches_cycles(oracle):
 
     # Control: a 5 degree turn of the environment must be caught by the background figure.
     turned = root / "turned"
-    lf("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", "4",
+    ok("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", "4",
        "--env", oracle["env"], "--env-rotation", "5", "--out", turned)
     assert compare(cy, turned)["psnr_background"] < 40.0
 
 
-MOVE_TWO_OBJECTS = '''
+MOVE_TWO_OBJECTS = f'''
 import math, sys
 import bpy
 bpy.ops.wm.open_mainfile(filepath=sys.argv[1])
-objs = sorted((o for o in bpy.data.objects if o.get("lightfuse_component") not in (None, "background")),
-              key=lambda o: o["lightfuse_component"])
+objs = sorted((o for o in bpy.data.objects if o.get({COMPONENT_PROP!r}) not in (None, "background")),
+              key=lambda o: o[{COMPONENT_PROP!r}])
 assert len(objs) >= 2, [o.name for o in bpy.data.objects]
 # As a person would in the viewport: slide one object across the floor (Blender Z up) and turn
 # it; lift the other a little, turn it and slide it the other way.
@@ -95,7 +90,7 @@ a, b = objs[0], objs[1]
 a.location.x += 0.12; a.location.y -= 0.08; a.rotation_euler.z += math.radians(35)
 b.location.x -= 0.10; b.location.y += 0.06; b.rotation_euler.z -= math.radians(60)
 bpy.ops.wm.save_as_mainfile(filepath=sys.argv[2])
-print(a["lightfuse_component"], b["lightfuse_component"])
+print(a[{COMPONENT_PROP!r}], b[{COMPONENT_PROP!r}])
 '''
 
 
@@ -110,7 +105,7 @@ def test_dcc_loop_blender_edit_relit_by_lightfuse_matches_cycles(oracle, tmp_pat
     costs no agreement. Required: >= 30 dB, the static test's bar. Control: LightFuse rendering
     the *unedited* arrangement against Cycles' edited one gives 25.3 dB; required at least 4 dB
     below the edited figure (measured 7.7), so the test sees whether the layout arrived."""
-    root, ds = oracle["root"], oracle["dataset"]
+    ds = oracle["dataset"]
     blend, edited = tmp_path / "scene.blend", tmp_path / "edited.blend"
     run_script("import_scene.py", oracle["scene"], "--out", blend)
     script = tmp_path / "move.py"
@@ -127,10 +122,10 @@ def test_dcc_loop_blender_edit_relit_by_lightfuse_matches_cycles(oracle, tmp_pat
     run_script("render_layout.py", "--dataset", ds, "--state", "state0", "--layout", layout,
                "--env", oracle["env"], "--spp", CYCLES_SPP, "--max-bounces", "1", "--no-denoise",
                "--rgb-only", "--quiet", "--out", cy)
-    lf("render", oracle["scene"], "--state", "state0", "--layout", layout, "--cameras", ds,
+    ok("render", oracle["scene"], "--state", "state0", "--layout", layout, "--cameras", ds,
        "--spp", LIGHTFUSE_SPP, "--out", ours)
     r = compare(cy, ours)
-    lf("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", "16", "--out", still)
+    ok("render", oracle["scene"], "--state", "state0", "--cameras", ds, "--spp", "16", "--out", still)
     control = compare(cy, still)
     print(f"DCC loop (moved {moved}): LightFuse vs Cycles {r['psnr_all']:.2f} dB "
           f"(background {r['psnr_background']:.2f} dB); unedited control {control['psnr_all']:.2f} dB")
