@@ -278,6 +278,32 @@ pub struct Losses {
     pub spp: u32,
 }
 
+/// The image term of eq. training-objectives over the drawn `pixels` of `obs`: the L1 value
+/// (logged whatever the loss) and the chosen `loss`'s gradient on each pixel's estimate,
+/// divided by 3 N spp so that the replay of each of the `spp` samples carries its share.
+fn image_term(
+    loss: &Loss,
+    obs: &Observation,
+    pixels: &[u32],
+    rendered: &[[f32; 3]],
+    spp: u32,
+) -> (f32, Vec<[f32; 3]>) {
+    let n = pixels.len().max(1) as f64;
+    let mut l1 = 0.0f64;
+    let eps = loss.epsilon(pixels.iter().map(|&p| obs.rgb[p as usize]));
+    let ybar: Vec<[f32; 3]> = pixels
+        .iter()
+        .zip(rendered)
+        .map(|(&p, &r)| {
+            let t = obs.rgb[p as usize];
+            l1 += Loss::L1.term(r, t, 0.0).0;
+            let (_, g) = loss.term(r, t, eps);
+            g.map(|g| (g / (3.0 * n * spp as f64)) as f32)
+        })
+        .collect();
+    ((l1 / (3.0 * n)) as f32, ybar)
+}
+
 /// Inverse rendering's parameters, Adam, and where the run stands.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Inverter {
@@ -640,26 +666,35 @@ impl Inverter {
             spp,
         };
 
-        // Forward: each pixel's estimate.
+        // Forward: each pixel's estimate and the image term's gradient on it (eq.
+        // training-objectives).
         let rendered = passes.forward(&pixels, seed);
-        let n = pixels.len().max(1) as f64;
-        let mut l1 = 0.0f64;
-        let eps = s.loss.epsilon(pixels.iter().map(|&p| obs.rgb[p as usize]));
-        let ybar: Vec<[f32; 3]> = pixels
-            .iter()
-            .zip(&rendered)
-            .map(|(&p, &r)| {
-                let t = obs.rgb[p as usize];
-                l1 += Loss::L1.term(r, t, 0.0).0;
-                let (_, g) = s.loss.term(r, t, eps);
-                g.map(|g| (g / (3.0 * n * spp as f64)) as f32)
-            })
-            .collect();
-        let l1 = (l1 / (3.0 * n)) as f32;
+        let (l1, ybar) = image_term(&s.loss, obs, &pixels, &rendered, spp);
 
         // Adjoint: replay every sample under the second seed.
         let materials_on = it >= s.lighting_until;
         let Adjoint { d_env, d_mat } = passes.adjoint(&pixels, &ybar, seed_grad, materials_on);
+        // Adam: the state's environment (with its TV term), then, once the schedule lets them
+        // move, the materials.
+        let tv = self.update_environment(k, &env, &d_env);
+        if materials_on {
+            self.update_materials(&d_mat);
+        }
+        self.iteration += 1;
+        let tvv = s.lambda_tv * tv;
+        Losses {
+            l1,
+            tv: tvv,
+            total: l1 + tvv,
+            spp,
+        }
+    }
+
+    /// Adam on state `k`'s environment `env` (its current texels) from the adjoint's texel
+    /// gradients `d_env` plus the TV term's, through E = exp ρ. Returns the TV term's value.
+    fn update_environment(&mut self, k: usize, env: &Environment, d_env: &[[f32; 3]]) -> f32 {
+        let s = &self.settings;
+        let it = self.iteration;
         let texels = env.pixels.len();
         let tv = env_tv(&env.pixels, env.width, env.height);
         // E = exp ρ: dL/dρ = dL/dE · E.
@@ -674,64 +709,66 @@ impl Inverter {
             .adam
             .group_index(&format!("env{k}"))
             .expect("one group per state");
+        self.adam.set_schedule(
+            g_env,
+            Schedule::Constant {
+                lr: s.lr_at(s.lr_env, 0, it),
+            },
+        );
+        self.adam.step(g_env, &mut self.envs[k], &d_rho);
+        tv.value
+    }
+
+    /// Adam on every surfel's base colour (from `lighting_until`) and, from `base_color_until`,
+    /// its metallic and roughness, from the adjoint's material gradients through the logit.
+    fn update_materials(&mut self, d_mat: &[MaterialGrads]) {
+        let s = &self.settings;
+        let it = self.iteration;
         let lr = |base: f32, start: u32| Schedule::Constant {
             lr: s.lr_at(base, start, it),
         };
-        self.adam.set_schedule(g_env, lr(s.lr_env, 0));
-        self.adam.step(g_env, &mut self.envs[k], &d_rho);
-
-        if materials_on {
-            let all = it >= s.base_color_until;
-            for (c, (m, g)) in self.materials.iter_mut().zip(&d_mat).enumerate() {
-                // d/dlogit = d/dvalue · σ(1 − σ).
-                let dsig = |x: f32| {
-                    let y = sigmoid(x);
-                    y * (1.0 - y)
-                };
-                let d_bc: Vec<f32> = (0..m.len())
-                    .flat_map(|i| {
-                        let b = &m.base_color;
-                        [0, 1, 2].map(|ch| g.base_color[i][ch] * dsig(b[3 * i + ch]))
-                    })
+        let all = it >= s.base_color_until;
+        for (c, (m, g)) in self.materials.iter_mut().zip(d_mat).enumerate() {
+            // d/dlogit = d/dvalue · σ(1 − σ).
+            let dsig = |x: f32| {
+                let y = sigmoid(x);
+                y * (1.0 - y)
+            };
+            let d_bc: Vec<f32> = (0..m.len())
+                .flat_map(|i| {
+                    let b = &m.base_color;
+                    [0, 1, 2].map(|ch| g.base_color[i][ch] * dsig(b[3 * i + ch]))
+                })
+                .collect();
+            let gi = self
+                .adam
+                .group_index(&format!("{c}/base_color"))
+                .expect("group");
+            self.adam
+                .set_schedule(gi, lr(s.lr_base_color, s.lighting_until));
+            self.adam.step(gi, &mut m.base_color, &d_bc);
+            if all {
+                let d_m: Vec<f32> = (0..m.len())
+                    .map(|i| g.metallic[i] * dsig(m.metallic[i]))
                     .collect();
-                let gi = self
+                let d_r: Vec<f32> = (0..m.len())
+                    .map(|i| g.roughness[i] * dsig(m.roughness[i]))
+                    .collect();
+                let gm = self
                     .adam
-                    .group_index(&format!("{c}/base_color"))
+                    .group_index(&format!("{c}/metallic"))
                     .expect("group");
                 self.adam
-                    .set_schedule(gi, lr(s.lr_base_color, s.lighting_until));
-                self.adam.step(gi, &mut m.base_color, &d_bc);
-                if all {
-                    let d_m: Vec<f32> = (0..m.len())
-                        .map(|i| g.metallic[i] * dsig(m.metallic[i]))
-                        .collect();
-                    let d_r: Vec<f32> = (0..m.len())
-                        .map(|i| g.roughness[i] * dsig(m.roughness[i]))
-                        .collect();
-                    let gm = self
-                        .adam
-                        .group_index(&format!("{c}/metallic"))
-                        .expect("group");
-                    self.adam
-                        .set_schedule(gm, lr(s.lr_metallic, s.base_color_until));
-                    self.adam.step(gm, &mut m.metallic, &d_m);
-                    let gr = self
-                        .adam
-                        .group_index(&format!("{c}/roughness"))
-                        .expect("group");
-                    self.adam
-                        .set_schedule(gr, lr(s.lr_roughness, s.base_color_until));
-                    self.adam.step(gr, &mut m.roughness, &d_r);
-                }
+                    .set_schedule(gm, lr(s.lr_metallic, s.base_color_until));
+                self.adam.step(gm, &mut m.metallic, &d_m);
+                let gr = self
+                    .adam
+                    .group_index(&format!("{c}/roughness"))
+                    .expect("group");
+                self.adam
+                    .set_schedule(gr, lr(s.lr_roughness, s.base_color_until));
+                self.adam.step(gr, &mut m.roughness, &d_r);
             }
-        }
-        self.iteration += 1;
-        let tvv = s.lambda_tv * tv.value;
-        Losses {
-            l1,
-            tv: tvv,
-            total: l1 + tvv,
-            spp,
         }
     }
 }
