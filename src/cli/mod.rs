@@ -811,7 +811,7 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
             report.iterations,
             report.seconds
         );
-        let split = |f: &lightfuse::stages::invert::run::ImageFigures| {
+        let split = |f: &lightfuse::eval::stage3::ImageFigures| {
             let db = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
             format!(
                 "surface {} / sky {}",

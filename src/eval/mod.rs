@@ -9,6 +9,7 @@ pub mod metrics;
 pub mod pose;
 pub mod relight;
 pub mod report;
+pub mod stage3;
 pub mod tables;
 
 pub use metrics::{depth_error, psnr, psnr_srgb, ssim, ssim_srgb, DepthError};
