@@ -15,7 +15,8 @@
 
 use crate::error::{Error, Result};
 use crate::io::dataset::Dataset;
-use crate::scene::{Scene, BACKGROUND};
+use crate::scene::{Rigid, Scene, BACKGROUND};
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// One stage's own files: its report, its loss log and its checkpoint, in `dir`.
@@ -69,7 +70,7 @@ impl WorkDir {
         }
     }
 
-    /// Stage 1's object poses step by step (`stages::reconstruct::PoseSteps`).
+    /// Stage 1's object poses step by step ([`PoseSteps`]).
     pub fn poses(&self) -> PathBuf {
         self.root.join("poses.json")
     }
@@ -132,6 +133,40 @@ impl WorkDir {
     /// `lightfuse run`'s record of the settings the folder was made with.
     pub fn run_record(&self) -> PathBuf {
         self.root.join("run.json")
+    }
+}
+
+/// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
+/// identities included), as item 4 of stage 1 found them (`stages::reconstruct::poses::estimate`): by point-cloud registration (none where it
+/// failed), by the rendered alignment, each of the two polished by ICP in its own basin and
+/// the better fit of the two (`register::Pair::best_fit`), and where training starts: that
+/// pose or a polished turn of it about the vertical (`register::Pair::choose_turn`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PoseSteps {
+    pub format: String,
+    pub registered: Vec<Vec<Option<Rigid>>>,
+    pub aligned: Vec<Vec<Rigid>>,
+    /// Of the aligned and the registered pose, each polished (`register::Pair::polish`),
+    /// the better geometric fit (`register::Pair::best_fit`).
+    pub polished: Vec<Vec<Rigid>>,
+    /// Where training starts: `register::Pair::choose_turn` of the polished pose.
+    pub turned: Vec<Vec<Rigid>>,
+}
+
+impl PoseSteps {
+    pub const FORMAT: &'static str = "lightfuse-stage1-poses/3";
+
+    /// The record in `work`, if there is one of `states` x `objects` poses (a record of another
+    /// dataset or an older format counts as none: it only adds figures to the report).
+    pub fn read(work: &WorkDir, states: usize, objects: usize) -> Option<PoseSteps> {
+        let p: PoseSteps = serde_json::from_slice(&std::fs::read(work.poses()).ok()?).ok()?;
+        let fits = |lens: Vec<usize>| lens.len() == states && lens.iter().all(|&l| l == objects);
+        (p.format == Self::FORMAT
+            && fits(p.registered.iter().map(Vec::len).collect())
+            && fits(p.aligned.iter().map(Vec::len).collect())
+            && fits(p.polished.iter().map(Vec::len).collect())
+            && fits(p.turned.iter().map(Vec::len).collect()))
+        .then_some(p)
     }
 }
 

@@ -1,7 +1,7 @@
 //! Stage 1's object poses (item 4 of the stage; the paper's eq. state-assembly places each
 //! object by them): every object's rigid motion from the reference state into each training
 //! state, found from the captures alone before training starts, in four recorded steps
-//! ([`PoseSteps`], `poses.json`): point-cloud registration ([`super::register`]), alignment by
+//! ([`PoseSteps`], `poses.json`, a work-folder file): point-cloud registration ([`super::register`]), alignment by
 //! rendering ([`super::align`]), an ICP polish of both that keeps the better geometric fit, and
 //! a choice among turns about the vertical that the texture decides. `--oracle-poses` takes
 //! the dataset's instead ([`oracle`]).
@@ -10,44 +10,9 @@ use super::init::{ObjectRef, PointCloud};
 use super::{align, register};
 use crate::error::Result;
 use crate::io::dataset::{Dataset, Observation};
-use crate::io::work::WorkDir;
+use crate::io::work::PoseSteps;
 use crate::scene::Rigid;
 use glam::Vec3;
-use serde::{Deserialize, Serialize};
-
-/// `poses.json`: the poses of each object, `[j][o]` per training state (the reference state's
-/// identities included), as item 4 of stage 1 found them ([`estimate`]): by point-cloud registration (none where it
-/// failed), by the rendered alignment, each of the two polished by ICP in its own basin and
-/// the better fit of the two ([`register::Pair::best_fit`]), and where training starts: that
-/// pose or a polished turn of it about the vertical ([`register::Pair::choose_turn`]).
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct PoseSteps {
-    pub format: String,
-    pub registered: Vec<Vec<Option<Rigid>>>,
-    pub aligned: Vec<Vec<Rigid>>,
-    /// Of the aligned and the registered pose, each polished ([`register::Pair::polish`]),
-    /// the better geometric fit ([`register::Pair::best_fit`]).
-    pub polished: Vec<Vec<Rigid>>,
-    /// Where training starts: [`register::Pair::choose_turn`] of the polished pose.
-    pub turned: Vec<Vec<Rigid>>,
-}
-
-impl PoseSteps {
-    pub const FORMAT: &'static str = "lightfuse-stage1-poses/3";
-
-    /// The record in `work`, if there is one of `states` x `objects` poses (a record of another
-    /// dataset or an older format counts as none: it only adds figures to the report).
-    pub(super) fn read(work: &WorkDir, states: usize, objects: usize) -> Option<PoseSteps> {
-        let p: PoseSteps = serde_json::from_slice(&std::fs::read(work.poses()).ok()?).ok()?;
-        let fits = |lens: Vec<usize>| lens.len() == states && lens.iter().all(|&l| l == objects);
-        (p.format == Self::FORMAT
-            && fits(p.registered.iter().map(Vec::len).collect())
-            && fits(p.aligned.iter().map(Vec::len).collect())
-            && fits(p.polished.iter().map(Vec::len).collect())
-            && fits(p.turned.iter().map(Vec::len).collect()))
-        .then_some(p)
-    }
-}
 
 /// The dataset's ground-truth poses relative to the reference state (`--oracle-poses`; an
 /// evaluation aid, not a capture's information).

@@ -21,21 +21,20 @@
 //!    poses of step 2 before training ([`PoseSteps`]), is written when they are found, so the
 //!    report can say where a pose error entered.
 
-use super::poses::{self, PoseSteps};
+use super::poses;
 use super::train::{render_state, Model, RawComponent, Settings, Trainer};
 use super::{completion, init, segment, support};
 use crate::error::{Error, Result};
-use crate::eval::pose::pose_error;
-use crate::eval::report::{covered_psnr_srgb, depth_errors, save_comparison, ObjectPoseError};
+use crate::eval::report::ObjectPoseError;
+use crate::eval::stage1::{self, HeldOutView};
 use crate::io::dataset::{split, Dataset, Observation, HOLDOUT};
-use crate::io::work::{stage1_view_name, WorkDir};
+use crate::io::work::{PoseSteps, WorkDir};
 use crate::io::AtomicFiles;
 use crate::progress::{say, Progress};
 use crate::scene::{Component, Rigid, Scene, State};
 use crate::stages::common::{
     check_resumed_settings, read_checkpoint, resume_or_start, StageLog, StageLoop,
 };
-use crate::stats::median;
 use glam::Vec3;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -57,17 +56,6 @@ pub struct Options {
     pub voxel: f32,
     /// Depth-discrepancy threshold τ_D of eq. completion-mask, metres.
     pub tau_d: f32,
-}
-
-/// One held-out view's figures.
-#[derive(Clone, Debug, Serialize)]
-pub struct HeldOutView {
-    pub state: String,
-    pub view: usize,
-    pub psnr_srgb: f64,
-    pub median_depth_error_m: f64,
-    /// Capture | render | 4 × |difference|, sRGB, covered pixels only.
-    pub image: String,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -463,107 +451,32 @@ fn evaluate(
     opts: &Options,
     t0: Instant,
 ) -> Result<Report> {
-    // Held-out views: PSNR over covered pixels, depth error, a comparison image each.
-    let mut psnrs = Vec::new();
-    let mut depth_err: Vec<f64> = Vec::new();
-    let mut heldout = Vec::new();
-    for (j, views) in held.iter().enumerate() {
-        let state = &dataset.states[train_states[j]].name;
-        for o in views {
-            let img = render_state(model, j, &o.camera);
-            let mut view_depth = depth_errors(&img.depth, &img.alpha, &o.depth);
-            if view_depth.is_empty() {
-                continue;
-            }
-            let psnr = covered_psnr_srgb(&img.color, &o.rgb, &o.depth);
-            psnrs.push(psnr);
-            let name = stage1_view_name(true, state, o.view);
-            save_comparison(
-                &img.color,
-                &o.rgb,
-                &o.depth,
-                o.camera.w,
-                o.camera.h,
-                &opts.work.root().join(&name),
-            )?;
-            depth_err.extend(&view_depth);
-            heldout.push(HeldOutView {
-                state: state.clone(),
-                view: o.view,
-                psnr_srgb: psnr,
-                median_depth_error_m: median(&mut view_depth).unwrap_or(f64::NAN),
-                image: name,
-            });
-        }
-    }
-    // Training views, for the gap between fitting and generalising (images in `train/`).
-    let mut train_psnrs = Vec::new();
-    for (j, views) in train.iter().enumerate() {
-        let state = &dataset.states[train_states[j]].name;
-        for o in views {
-            let img = render_state(model, j, &o.camera);
-            train_psnrs.push(covered_psnr_srgb(&img.color, &o.rgb, &o.depth));
-            let path = opts.work.stage1_view(false, state, o.view);
-            save_comparison(&img.color, &o.rgb, &o.depth, o.camera.w, o.camera.h, &path)?;
-        }
-    }
-    let median = median(&mut depth_err).unwrap_or(f64::NAN);
-    // Scene extent from the training captures' points.
-    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for views in train {
-        for o in views {
-            for (i, &z) in o.depth.iter().enumerate() {
-                if z > 0.0 {
-                    let (x, y) = (i % o.camera.w as usize, i / o.camera.w as usize);
-                    let p = Vec3::from_array(init::pixel_to_world(&o.camera, x, y, z));
-                    lo = lo.min(p);
-                    hi = hi.max(p);
-                }
-            }
-        }
-    }
-    let extent = (hi - lo).length() as f64;
-
-    // Pose errors against the ground truth (evaluation only), forgiving declared symmetries;
-    // also of the poses before training, when step 2 recorded them (not with oracle poses).
+    let figures = stage1::view_figures(
+        &|j, camera| render_state(model, j, camera),
+        dataset,
+        train_states,
+        train,
+        held,
+        &opts.work,
+    )?;
+    // Also of the poses before training, when step 2 recorded them (not with oracle poses).
     let steps = (!opts.oracle_poses)
         .then(|| PoseSteps::read(&opts.work, train_states.len(), dataset.objects.len()))
         .flatten();
-    let mut pose_errors = Vec::new();
-    let ref_k = train_states[0];
-    for (j, &k) in train_states.iter().enumerate().skip(1) {
-        for (o, obj) in dataset.objects.iter().enumerate() {
-            let gt = dataset
-                .object_pose(k, &obj.name)?
-                .compose(&dataset.object_pose(ref_k, &obj.name)?.inverse());
-            let frame = match obj.reference_pose {
-                Some(_) => dataset.object_frame(o)?,
-                None => {
-                    let p = &model.components[o + 1].position;
-                    let n = (p.len() / 3).max(1) as f32;
-                    let c = p.chunks(3).fold(Vec3::ZERO, |a, q| a + Vec3::from_slice(q)) / n;
-                    Rigid {
-                        translation: c.to_array(),
-                        ..Rigid::IDENTITY
-                    }
-                }
-            };
-            let error = |pose: &Rigid| pose_error(&gt, pose, &frame, &obj.symmetries);
-            pose_errors.push(ObjectPoseError {
-                state: dataset.states[k].name.clone(),
-                object: obj.name.clone(),
-                error: error(&model.poses[j][o]),
-                registered: steps
-                    .as_ref()
-                    .and_then(|s| s.registered[j][o].as_ref())
-                    .map(error),
-                aligned: steps.as_ref().map(|s| error(&s.aligned[j][o])),
-                polished: steps.as_ref().map(|s| error(&s.polished[j][o])),
-                turned: steps.as_ref().map(|s| error(&s.turned[j][o])),
-            });
-        }
-    }
-
+    // Where a dataset gives no object frame, an object's errors are measured at its surfels'
+    // centroid.
+    let centroid = |o: usize| {
+        let p = &model.components[o + 1].position;
+        let n = (p.len() / 3).max(1) as f32;
+        p.chunks(3).fold(Vec3::ZERO, |a, q| a + Vec3::from_slice(q)) / n
+    };
+    let pose_errors = stage1::pose_errors(
+        dataset,
+        train_states,
+        &model.poses,
+        &centroid,
+        steps.as_ref(),
+    )?;
     // Label shares: true surface points of each object (masked depth, reference state, all its
     // views) against the nearest surfel of the assembled reference state; and the purity of
     // each object's surfels against the nearest observed point.
@@ -582,12 +495,12 @@ fn evaluate(
         surfels: model.surfel_count(),
         seconds: t0.elapsed().as_secs_f64(),
         training_seconds: 0.0,
-        heldout_psnr_srgb: psnrs.iter().sum::<f64>() / psnrs.len().max(1) as f64,
-        heldout_views: psnrs.len(),
-        train_psnr_srgb: train_psnrs.iter().sum::<f64>() / train_psnrs.len().max(1) as f64,
-        heldout,
-        heldout_median_depth_error_m: median,
-        heldout_median_depth_error_rel: median / extent.max(1e-9),
+        heldout_psnr_srgb: figures.heldout_psnr_srgb,
+        heldout_views: figures.heldout.len(),
+        train_psnr_srgb: figures.train_psnr_srgb,
+        heldout_median_depth_error_rel: figures.median_depth_error_m / figures.extent_m.max(1e-9),
+        heldout_median_depth_error_m: figures.median_depth_error_m,
+        heldout: figures.heldout,
         pose_errors,
         label_share,
         label_purity,
