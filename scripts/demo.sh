@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# The main job on the embedded default: set up, generate the small `demo` dataset with Blender's
-# Cycles, export its scene as a glTF mesh scene, surfelize it into a LightFuse scene, show it,
-# and convert it to USD and 3DGS PLY. Outputs go to data/demo/ (ignored by git). Re-running
-# reuses the dataset; pass --fresh to regenerate it.
+# The demo, end to end: set up (scripts/setup.sh), generate the small `demo` dataset with
+# Blender's Cycles, check the renderer on an oracle scene (the dataset's meshes surfelized with
+# their true poses and environments, rendered and compared with Cycles), then `lightfuse run`:
+# stages 1-3 and the evaluation (data/demo/recon/eval/), and the relightable scene edited into
+# the test layout under a new environment. Outputs go to data/demo/ (ignored by git).
+# Re-running reuses the dataset (--fresh regenerates it) and lightfuse run's up-to-date stages.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
