@@ -399,9 +399,9 @@ impl Passes<'_> {
     /// continuation again as [`crate::trace::Placed::material_backward`] does). A primary
     /// record's gradient is summed over the pixel's samples that start at it and scattered
     /// once. The two together took the adjoint of the `path_replay` benchmark from 90-98 ms to
-    /// 77-84 ms (README). Deterministic for any thread count: work items of
-    /// [`PIXEL_CHUNK`] pixels, summed in pixel order, within a block of [`PIXEL_BLOCK`] pixels
-    /// the primary records first.
+    /// 77-84 ms (commit 96807a2, alternating with the one before). Deterministic for any thread
+    /// count: work items of [`PIXEL_CHUNK`] pixels, summed in pixel order, within a block of
+    /// [`PIXEL_BLOCK`] pixels the primary records first.
     pub fn adjoint(
         &self,
         pixels: &[u32],
