@@ -3,8 +3,11 @@
 //! ([`StageLoop`], [`resume_or_start`]); progress is [`crate::progress`].
 
 use crate::error::{Error, Result};
+use crate::io::dataset::{split, Dataset, Observation};
+use crate::io::work::{read_stage_scene, StageFiles};
 use crate::io::AtomicFiles;
 use crate::progress::{say, Progress};
+use crate::scene::Scene;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 use std::io::Write;
@@ -237,6 +240,45 @@ pub fn resume_or_start<C: Resumable>(
         Ok((c, true))
     } else {
         Ok((fresh()?, false))
+    }
+}
+
+/// What stages 2 and 3 start from: the dataset, the earlier stage's scene checked against it
+/// ([`read_stage_scene`]; `missing` says how to make it), the stage's own folder (made), and
+/// every training state's observations split into training and held-out views.
+pub struct StageInputs {
+    pub dataset: Dataset,
+    pub scene: Scene,
+    pub files: StageFiles,
+    /// The dataset's training states, in order; `train[j]` and `held[j]` are state
+    /// `train_states[j]`'s.
+    pub train_states: Vec<usize>,
+    pub train: Vec<Vec<Observation>>,
+    pub held: Vec<Vec<Observation>>,
+}
+
+impl StageInputs {
+    pub fn read(
+        dataset: &Path,
+        scene: &Path,
+        missing: &str,
+        files: StageFiles,
+        quiet: bool,
+    ) -> Result<StageInputs> {
+        let dataset = Dataset::read(dataset)?;
+        let scene = read_stage_scene(scene, &dataset, missing)?;
+        std::fs::create_dir_all(&files.dir).map_err(|e| Error::io(&files.dir, e))?;
+        say(quiet, "reading the training captures");
+        let train_states = dataset.train_states();
+        let (train, held) = split(dataset.training_observations()?);
+        Ok(StageInputs {
+            dataset,
+            scene,
+            files,
+            train_states,
+            train,
+            held,
+        })
     }
 }
 

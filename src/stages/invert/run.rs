@@ -8,15 +8,14 @@ use super::train::{initial_environment, Inverter, Settings};
 use crate::error::{Error, Result};
 use crate::eval::lighting::{AlbedoFigures, MaterialFigures};
 use crate::eval::stage3::StateReport;
-use crate::io::dataset::split;
-use crate::io::dataset::Dataset;
-use crate::io::work::{read_stage_scene, WorkDir};
+use crate::io::work::WorkDir;
 use crate::io::AtomicFiles;
 use crate::progress::{say, Progress};
 use crate::scene::{EnvRef, Surfels};
 use crate::shade::estimator::self_hit_epsilon;
 use crate::stages::common::{
-    check_resumed_settings, read_checkpoint, resume_or_start, Resumable, StageLog, StageLoop,
+    check_resumed_settings, read_checkpoint, resume_or_start, Resumable, StageInputs, StageLog,
+    StageLoop,
 };
 use crate::trace::TraceScene;
 use serde::{Deserialize, Serialize};
@@ -149,19 +148,21 @@ fn scene_path(opts: &Options) -> Result<PathBuf> {
 /// Stage 3: inverse rendering of materials and per-state environments (eq. training-objectives).
 pub fn invert(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
-    let dataset = Dataset::read(&opts.dataset)?;
     let scene_file = scene_path(opts)?;
-    let scene = read_stage_scene(
+    let StageInputs {
+        dataset,
+        scene,
+        files: stage_files,
+        train_states,
+        train,
+        held,
+    } = StageInputs::read(
+        &opts.dataset,
         &scene_file,
-        &dataset,
         "run `lightfuse reconstruct` and `lightfuse refine` first (or pass --scene)",
+        opts.work.invert(),
+        opts.quiet,
     )?;
-    let stage_files = opts.work.invert();
-    std::fs::create_dir_all(&stage_files.dir).map_err(|e| Error::io(&stage_files.dir, e))?;
-
-    say(opts.quiet, "reading the training captures");
-    let train_states = dataset.train_states();
-    let (train, held) = split(dataset.training_observations()?);
     let (w, h) = (
         opts.settings.env_width as usize,
         opts.settings.env_height as usize,

@@ -4,13 +4,14 @@
 use super::train::{Refiner, Settings, TrainState};
 use crate::error::{Error, Result};
 use crate::eval::geometry::{tally_state, GeometryFigures, GeometryTally, LeakOptions};
-use crate::io::dataset::{split, Dataset, Observation};
-use crate::io::work::{read_stage_scene, WorkDir};
+use crate::io::dataset::Observation;
+use crate::io::work::WorkDir;
 use crate::io::AtomicFiles;
 use crate::progress::{say, Progress};
 use crate::scene::Scene;
 use crate::stages::common::{
-    check_resumed_settings, read_checkpoint, resume_or_start, Resumable, StageLog, StageLoop,
+    check_resumed_settings, read_checkpoint, resume_or_start, Resumable, StageInputs, StageLog,
+    StageLoop,
 };
 use crate::trace::TraceScene;
 use serde::{Deserialize, Serialize};
@@ -139,19 +140,21 @@ fn read_resumable(path: &Path, settings: &Settings) -> Result<Checkpoint> {
 /// Stage 2: refines stage 1's geometry for ray tracing (eq. geometry-objective).
 pub fn refine(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
-    let dataset = Dataset::read(&opts.dataset)?;
     let scene_path = opts.scene.clone().unwrap_or_else(|| opts.work.scene());
-    let scene = read_stage_scene(
+    let StageInputs {
+        dataset,
+        scene,
+        files: stage_files,
+        train_states,
+        train,
+        held,
+    } = StageInputs::read(
+        &opts.dataset,
         &scene_path,
-        &dataset,
         "run `lightfuse reconstruct <dataset> -o <work>` first (or pass --scene)",
+        opts.work.refine(),
+        opts.quiet,
     )?;
-    let stage_files = opts.work.refine();
-    std::fs::create_dir_all(&stage_files.dir).map_err(|e| Error::io(&stage_files.dir, e))?;
-
-    say(opts.quiet, "reading the training captures");
-    let train_states = dataset.train_states();
-    let (train, held) = split(dataset.training_observations()?);
     // (name, dataset index, held-out views, every view) per training state.
     let every: Vec<Vec<&Observation>> = train
         .iter()
