@@ -105,88 +105,18 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     }
     let dataset = crate::io::dataset::Dataset::read(&opts.dataset)?;
     crate::eval::relight::check_dataset(&dataset)?;
-    let record_path = opts.work.run_record();
-    // Outputs of the single-stage commands (no run.json) count as they are; a recorded other
-    // preset does not.
-    let other_preset = std::fs::read(&record_path)
-        .ok()
-        .and_then(|b| serde_json::from_slice::<RunRecord>(&b).ok())
-        .is_some_and(|r| r.preset != opts.preset.name());
-    let fresh = opts.force || other_preset;
-    if other_preset {
-        say(
-            opts.quiet,
-            &format!(
-                "{}: another preset made this work folder; every step runs again",
-                record_path.display()
-            ),
-        );
-    }
-    let root = opts.work.root();
-    std::fs::create_dir_all(root).map_err(|e| Error::io(root, e))?;
-    let w = &opts.work;
-    let ds = dataset.file.clone();
-    let invert_settings = || {
-        use crate::stages::invert::Settings;
-        let mut s = opts.preset.pick(Settings::fast, Settings::paper);
-        if let Some(l) = opts.loss {
-            s.loss = l;
-        }
-        s
-    };
-    let loss = invert_settings().loss;
-    let settings_match = |name: &str, outputs: &[PathBuf]| match name {
-        "evaluate" => eval_settings_match(&outputs[0], opts.denoise),
-        "stage 3: invert" => invert_settings_match(&outputs[1], loss),
-        _ => true,
-    };
-    let mut steps = Vec::new();
-    let mut step = |name: &str,
-                    outputs: Vec<PathBuf>,
-                    inputs: Vec<PathBuf>,
-                    f: &mut dyn FnMut(bool) -> Result<()>|
-     -> Result<()> {
-        let t = std::time::Instant::now();
-        let same_settings = settings_match(name, &outputs);
-        if !fresh && up_to_date(&outputs, &inputs) && same_settings {
-            say(
-                opts.quiet,
-                &format!("== {name}: up to date ({}), skipped", outputs[0].display()),
-            );
-            steps.push(StepOutcome {
-                step: name.into(),
-                outcome: "skipped (up to date)".into(),
-                seconds: 0.0,
-            });
-            return Ok(());
-        }
-        say(opts.quiet, &format!("== {name}"));
-        // Outputs made with other settings: their checkpoint cannot be resumed either.
-        f(!fresh && (same_settings || !outputs[0].exists()))?;
-        steps.push(StepOutcome {
-            step: name.into(),
-            outcome: "ran".into(),
-            seconds: t.elapsed().as_secs_f64(),
-        });
-        let record = RunRecord {
-            format: "lightfuse-run/1".into(),
-            preset: opts.preset.name().into(),
-            steps: steps.clone(),
-        };
-        crate::stages::common::write_checkpoint(&record_path, &record)
-    };
-
-    step(
+    let mut runner = Runner::new(opts)?;
+    let (w, ds) = (&opts.work, &dataset.file);
+    runner.step(
         "stage 1: reconstruct",
         vec![w.scene(), w.reconstruct().report()],
         vec![ds.clone()],
         &mut |resume| {
             use crate::stages::reconstruct::{run, train::Settings};
-            let settings = opts.preset.pick(Settings::fast, Settings::paper);
             run::reconstruct(&run::Options {
                 dataset: ds.clone(),
                 work: w.clone(),
-                settings,
+                settings: opts.preset.pick(Settings::fast, Settings::paper),
                 oracle_poses: false,
                 resume,
                 quiet: opts.quiet,
@@ -196,18 +126,17 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             .map(|_| ())
         },
     )?;
-    step(
+    runner.step(
         "stage 2: refine",
         vec![w.refined(), w.refine().report()],
         vec![ds.clone(), w.scene()],
         &mut |resume| {
             use crate::stages::refine::{self, Settings};
-            let settings = opts.preset.pick(Settings::fast, Settings::paper);
             refine::refine(&refine::Options {
                 dataset: ds.clone(),
                 work: w.clone(),
                 scene: None,
-                settings,
+                settings: opts.preset.pick(Settings::fast, Settings::paper),
                 leaks: Default::default(),
                 resume,
                 quiet: opts.quiet,
@@ -215,18 +144,17 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             .map(|_| ())
         },
     )?;
-    step(
+    runner.step(
         "stage 3: invert",
         vec![w.relightable(), w.invert().report()],
         vec![ds.clone(), w.refined()],
         &mut |resume| {
             use crate::stages::invert;
-            let settings = invert_settings();
             invert::invert(&invert::Options {
                 dataset: ds.clone(),
                 work: w.clone(),
                 scene: None,
-                settings,
+                settings: invert_settings(opts),
                 eval_spp: invert::run::DEFAULT_EVAL_SPP,
                 eval_stride: invert::run::DEFAULT_EVAL_STRIDE,
                 resume,
@@ -235,7 +163,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             .map(|_| ())
         },
     )?;
-    step(
+    runner.step(
         "evaluate",
         vec![w.eval_json()],
         vec![ds.clone(), w.scene(), w.relightable()],
@@ -253,7 +181,108 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
             .map(|_| ())
         },
     )?;
-    Ok(steps)
+    Ok(runner.steps)
+}
+
+/// Stage 3's settings for the run: the preset's, with `--loss` if given.
+fn invert_settings(opts: &Options) -> crate::stages::invert::Settings {
+    use crate::stages::invert::Settings;
+    let mut s = opts.preset.pick(Settings::fast, Settings::paper);
+    if let Some(l) = opts.loss {
+        s.loss = l;
+    }
+    s
+}
+
+/// Runs the steps of one `lightfuse run` in order, skipping those whose outputs are up to date
+/// and made with the same settings, and records each in `run.json` as it ends.
+struct Runner<'o> {
+    opts: &'o Options,
+    record_path: PathBuf,
+    /// Every step runs afresh (`--force`, or another preset made the folder).
+    fresh: bool,
+    steps: Vec<StepOutcome>,
+}
+
+impl<'o> Runner<'o> {
+    fn new(opts: &'o Options) -> Result<Runner<'o>> {
+        let record_path = opts.work.run_record();
+        // Outputs of the single-stage commands (no run.json) count as they are; a recorded
+        // other preset does not.
+        let other_preset = std::fs::read(&record_path)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<RunRecord>(&b).ok())
+            .is_some_and(|r| r.preset != opts.preset.name());
+        if other_preset {
+            say(
+                opts.quiet,
+                &format!(
+                    "{}: another preset made this work folder; every step runs again",
+                    record_path.display()
+                ),
+            );
+        }
+        let root = opts.work.root();
+        std::fs::create_dir_all(root).map_err(|e| Error::io(root, e))?;
+        Ok(Runner {
+            opts,
+            record_path,
+            fresh: opts.force || other_preset,
+            steps: Vec::new(),
+        })
+    }
+
+    /// Whether the outputs of step `name` were made with this run's settings (stage 3's loss,
+    /// the evaluation's denoising; the other steps' settings are the preset's).
+    fn settings_match(&self, name: &str, outputs: &[PathBuf]) -> bool {
+        match name {
+            "evaluate" => eval_settings_match(&outputs[0], self.opts.denoise),
+            "stage 3: invert" => {
+                invert_settings_match(&outputs[1], invert_settings(self.opts).loss)
+            }
+            _ => true,
+        }
+    }
+
+    /// Runs step `name` (`f(resume)`) unless its `outputs` are newer than its `inputs` and
+    /// were made with the same settings.
+    fn step(
+        &mut self,
+        name: &str,
+        outputs: Vec<PathBuf>,
+        inputs: Vec<PathBuf>,
+        f: &mut dyn FnMut(bool) -> Result<()>,
+    ) -> Result<()> {
+        let (opts, fresh) = (self.opts, self.fresh);
+        let t = std::time::Instant::now();
+        let same_settings = self.settings_match(name, &outputs);
+        if !fresh && up_to_date(&outputs, &inputs) && same_settings {
+            say(
+                opts.quiet,
+                &format!("== {name}: up to date ({}), skipped", outputs[0].display()),
+            );
+            self.steps.push(StepOutcome {
+                step: name.into(),
+                outcome: "skipped (up to date)".into(),
+                seconds: 0.0,
+            });
+            return Ok(());
+        }
+        say(opts.quiet, &format!("== {name}"));
+        // Outputs made with other settings: their checkpoint cannot be resumed either.
+        f(!fresh && (same_settings || !outputs[0].exists()))?;
+        self.steps.push(StepOutcome {
+            step: name.into(),
+            outcome: "ran".into(),
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        let record = RunRecord {
+            format: "lightfuse-run/1".into(),
+            preset: opts.preset.name().into(),
+            steps: self.steps.clone(),
+        };
+        crate::stages::common::write_checkpoint(&self.record_path, &record)
+    }
 }
 
 #[cfg(test)]
