@@ -297,7 +297,7 @@ def build(scene: dict, state: str | None, path: str, out_blend: str) -> None:
                                  "reference": state_names[ref_i] if ref_i < len(state_names) else state_names[0],
                                  "components": [{"name": c["name"], "id": c["id"]} for c in scene["components"]],
                                  "environments": scene["environments"]})
-    txt = bpy.data.texts.new("lightfuse_states.py")
+    txt = bpy.data.texts.new(lfstate.TEXT_BLOCK)
     with open(lfstate.__file__, encoding="utf-8") as f:
         txt.write(f.read())
     txt.use_module = True

@@ -48,7 +48,12 @@ def get_record(where: str) -> dict:
 
 
 def apply_layout_bl(rec: dict, layout_yup: dict, where: str) -> None:
-    """Place objects: world = layout (Y-up, relative to reference) applied to the reference."""
+    """Place objects: world = layout (Y-up, relative to reference) applied to the reference.
+
+    Objects the layout leaves out go back to the reference.  render_layout.py (``--layout``) and
+    export_mesh_scene.py (``--layout``, or a ``--state``'s poses from the record) call it; the
+    states of a .blend from import_scene.py are stored matrices, placed by ``lfstate.apply_state``.
+    """
     import bpy
     import mathutils
 

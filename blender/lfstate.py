@@ -17,6 +17,7 @@ STATES_PROP = "lightfuse_states"  # object: its Blender world matrix per state (
 COMPONENT_PROP = "lightfuse_component"  # object: the component it shows
 ORIGIN_PROP = "lightfuse_origin"  # object: its pivot in the reference state (Blender axes)
 ENV_NODE = "lightfuse_env"  # world: the Environment Texture node of a LightFuse world
+TEXT_BLOCK = "lightfuse_states.py"  # the text block holding this file
 
 
 class UnknownState(ValueError):

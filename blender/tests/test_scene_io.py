@@ -74,7 +74,7 @@ def test_import_then_move_then_export_gives_that_transform(lf_glb, tmp_path):
     # and by the same function saved in the .blend as its text block
     t, r = lf_glb["states"][1][1]["chair"]
     T = trs_to_matrix({"translation": t, "rotation": r})
-    block = bpy.data.texts["lightfuse_states.py"]
+    block = bpy.data.texts[lfstate.TEXT_BLOCK]
     with open(lfstate.__file__, encoding="utf-8") as f:
         assert block.as_string() == f.read()
     for apply_state in (lfstate.apply_state, block.as_module().apply_state):

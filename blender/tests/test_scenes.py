@@ -87,7 +87,7 @@ def test_declared_symmetries_map_each_object_onto_itself():
 def _albedo_turned(ob, tmp, centre, axis, angle, res=64):
     """The object's albedo and coverage at the pixel centres of a camera looking at `centre`
     (Y-up), turned about `axis` through `centre` by `angle`: the view of the object turned by
-    -angle. With max_bounces 0 and one sample at ~zero filter width (lfcommon.render_geometry),
+    -angle. With max_bounces 0 and one sample at ~zero filter width (lfrender.render_geometry),
     each pixel is one ray, the same ray in both frames."""
     import bpy
     from mathutils import Matrix, Vector
