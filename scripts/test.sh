@@ -19,6 +19,8 @@ cargo fmt --all -- --check
 echo "== cargo clippy (with and without --features denoise)"
 cargo clippy --locked --all-targets --features denoise --quiet -- -D warnings
 cargo clippy --locked --all-targets --quiet -- -D warnings
+echo "== cargo doc (the library's doc links resolve)"
+RUSTDOCFLAGS="-D warnings" cargo doc --locked --no-deps --lib --quiet
 echo "== cargo test"
 cargo test --locked --features denoise --quiet
 echo "== pytest"

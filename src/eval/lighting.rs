@@ -281,7 +281,7 @@ fn relative_error(pairs: &[([f32; 3], [f32; 3])], gain: [f64; 3]) -> f64 {
 /// whose truth sums to 0 are left out of the mean; with none left, NaN.
 ///
 /// `ratio[c]` is the median over pixels with p_c > 1e-4 of t_c / p_c (the upper median, as
-/// [`crate::eval::report::median`]): the per-channel gain that inverse rendering cannot tell
+/// [`crate::stats::median`]): the per-channel gain that inverse rendering cannot tell
 /// from the light's colour and strength. It is NaN when no pixel qualifies, and `scaled_error`
 /// then uses gain 1 for that channel. `scaled_error` is `raw_error`'s definition applied to
 /// ratio ⊙ p.

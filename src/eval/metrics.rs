@@ -1,6 +1,6 @@
 //! Image and depth metrics. PSNR uses peak 1 on images clamped to [0, 1] (scene-linear, or
 //! sRGB-encoded after clamping); SSIM is exactly the training definition in
-//! [`crate::optim::ssim`] (11×11 Gaussian window, σ = 1.5, zero-padded "same" statistics).
+//! [`crate::optim::ssim()`] (11×11 Gaussian window, σ = 1.5, zero-padded "same" statistics).
 
 use crate::scene::color::{srgb_byte, srgb_encode};
 use rayon::prelude::*;
@@ -86,7 +86,7 @@ pub fn ssim_srgb8(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -
     ssim(&srgb8(a), &srgb8(b), width, height)
 }
 
-/// Mean SSIM of the images as given (see [`crate::optim::ssim`]).
+/// Mean SSIM of the images as given (see [`crate::optim::ssim()`]).
 pub fn ssim(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 {
     crate::optim::ssim::ssim(a, b, width, height) as f64
 }

@@ -260,7 +260,7 @@ struct Pictures {
 
 /// Runs the evaluation and writes `<work>/eval/{eval.json, eval.md, report.html}` (and the
 /// images: [`crate::eval::html`]): the inputs loaded and checked, the median albedo ratio,
-/// every (run, view) rendered and measured ([`render_view`]), the figures pooled into the
+/// every (run, view) rendered and measured (`render_view`), the figures pooled into the
 /// tables, and the files written last, so a failed evaluation leaves an earlier `eval/` as it
 /// was.
 pub fn evaluate(opts: &Options) -> Result<Report> {

@@ -90,7 +90,7 @@ impl Selection {
     }
 }
 
-/// What [`evaluate`] records in the report's `denoise` when it denoises.
+/// What [`super::relight::evaluate`] records in the report's `denoise` when it denoises.
 pub const DENOISER: &str = "Open Image Denoise 2.5 RT filter (HDR; albedo and normal guides)";
 
 /// One image's figures.

@@ -168,7 +168,7 @@ pub fn scale_regularization(scales: &[[f32; 2]], s_max: f32) -> Loss<Vec<[f32; 2
 
 /// Confidence-weighted depth L1 normalised by the weighted reference depth (eq.
 /// reconstruction-depth): L_D = ‖C ⊙ (D̃ − D*)‖₁ / (‖C ⊙ D*‖₁ + ε), where C is `confidence`
-/// (1 when `None`) times the validity mask [D* > 0] (reference 0 = no data). Returns the
+/// (1 when `None`) times the validity mask \[D* > 0\] (reference 0 = no data). Returns the
 /// gradients w.r.t. the rendered depth D̃ and w.r.t. the confidence.
 pub fn depth_l1(
     rendered: &[f32],

@@ -8,10 +8,10 @@
 //! renormalised, exactly like `conv2d(padding = 5)`). SSIM is the mean of the SSIM map over all
 //! pixels and the three channels; D-SSIM = (1 − SSIM) / 2.
 //!
-//! The window is separable, so the five local moments (μx, μy, E[x²], E[y²], E[xy]) are blurs.
+//! The window is separable, so the five local moments (μx, μy, E\[x²\], E\[y²\], E\[xy\]) are blurs.
 //! The zero-padded blur with a symmetric kernel is its own adjoint, so the backward pass is
-//! three more blurs: with S the SSIM map and A = ∂S/∂μx (through σ), B = ∂S/∂E[x²],
-//! C = ∂S/∂E[xy] per pixel, ∂ΣS/∂x = G∗A + 2x·(G∗B) + y·(G∗C).
+//! three more blurs: with S the SSIM map and A = ∂S/∂μx (through σ), B = ∂S/∂E\[x²\],
+//! C = ∂S/∂E\[xy\] per pixel, ∂ΣS/∂x = G∗A + 2x·(G∗B) + y·(G∗C).
 
 use super::Loss;
 use rayon::prelude::*;

@@ -262,7 +262,7 @@ pub fn eval_f_cos_grad(n: Vec3, wo: Vec3, wi: Vec3, m: &Material, g: [f32; 3]) -
 
 /// Probability of drawing from the GGX lobe for a view at cos θo: the Schlick estimate of the
 /// specular albedo against the diffuse albedo left under it (luminance), each lobe kept at
-/// least [`MIN_LOBE_PROB`] when the diffuse lobe is present at all.
+/// least `MIN_LOBE_PROB` when the diffuse lobe is present at all.
 pub fn specular_probability(cos_o: f32, m: &Material) -> f32 {
     let diffuse = luminance(m.diffuse_color());
     if diffuse <= 0.0 {

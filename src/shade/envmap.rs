@@ -41,7 +41,7 @@
 //! Z' = −X sin θ + Z cos θ, and the map is looked up at R_Y(θ) ω. Then atan2(Z', X') =
 //! atan2(Z, X) − θ, so u' = u − θ/2π: the radiance seen is the image rolled by +θW/360 columns
 //! toward larger column indices (`np.roll(img, +θW/360, axis=1)`), i.e. the world is turned by
-//! −θ about +Y. This agrees with `blender/lfcommon.py::rotate_env`, whose Blender test renders
+//! −θ about +Y. This agrees with `blender/lfenv.py::rotate_env`, whose Blender test renders
 //! both, and with the DomeLight note in `src/io/usd.rs`.
 //!
 //! # Importance sampling

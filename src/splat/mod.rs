@@ -37,7 +37,7 @@
 //! tile's own slice of a buffer, then summed per surfel: no atomics, and the result does not
 //! depend on the thread count.
 //!
-//! [`reference`] is the slow f64 version the tests compare against.
+//! [`mod@reference`] is the slow f64 version the tests compare against.
 
 mod backward;
 mod forward;

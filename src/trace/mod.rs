@@ -30,7 +30,7 @@
 //! rays, with respect to the hit surfels' stored parameters and the components' placements; it
 //! re-walks each ray with the forward's own traversal and the kernel's compositing adjoint.
 //!
-//! [`reference`] holds the slow, obviously correct f64 versions the tests compare against.
+//! [`mod@reference`] holds the slow, obviously correct f64 versions the tests compare against.
 
 mod backward;
 mod batch;

@@ -133,7 +133,7 @@ pub(crate) fn hit4(
 /// Axis-aligned bounds of the part of a surfel that can be hit: the disc |ξ|² ≤ r2_max(α)
 /// ([`crate::kernel::r2_max`]: the support, |ξ| ≤ CUTOFF, shrunk to where α·exp(−½|ξ|²) can still
 /// reach MIN_ALPHA). Along world axis k the ellipse with semi-axes r·s_u·t_u and r·s_v·t_v
-/// reaches ±r·sqrt((s_u t_u[k])² + (s_v t_v[k])²). A faint surfel's box is smaller than its
+/// reaches ±r·sqrt((s_u t_u\[k\])² + (s_v t_v\[k\])²). A faint surfel's box is smaller than its
 /// support's (α = 0.05: r = 2.3 rather than 3, a 43 % smaller cross-section), and a learned
 /// scene has many: the hit test rejects everything outside r2_max anyway, so the hits are the
 /// same and fewer leaves are entered.

@@ -64,13 +64,13 @@ pub enum SppSchedule {
 ///
 /// With replayed samples the gradient is (∂ℓ/∂L_p) · ∂L_p/∂θ with L_p a few-sample estimate;
 /// the two factors come from independent sample sets, so its expectation is
-/// E[∂ℓ/∂L_p] · ∂E[L_p]/∂θ. For L1, E[sign(L_p − I_p)] vanishes where the *median* of L_p
+/// E\[∂ℓ/∂L_p\] · ∂E\[L_p\]/∂θ. For L1, E\[sign(L_p − I_p)\] vanishes where the *median* of L_p
 /// meets I_p, not its mean: where the estimate is skewed (a rarely sampled bright source seen
 /// through a small opening: most samples below the mean, a few far above), the fit settles
 /// with the mean above the capture, the more so the fewer the samples; which parameters carry
 /// the excess (materials or the environment) depends on the scene (measured: on the demo and
 /// kitchen, L1 left the environments 25-30 % too bright and the albedo too dark). A loss whose
-/// derivative is linear in L_p has expectation ∂ℓ/∂L_p(E[L_p]): unbiased at any spp.
+/// derivative is linear in L_p has expectation ∂ℓ/∂L_p(E\[L_p\]): unbiased at any spp.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Loss {
@@ -400,8 +400,8 @@ impl Passes<'_> {
     /// record's gradient is summed over the pixel's samples that start at it and scattered
     /// once. The two together took the adjoint of the `path_replay` benchmark from 90-98 ms to
     /// 77-84 ms (commit 96807a2, alternating with the one before). Deterministic for any thread
-    /// count: work items of [`PIXEL_CHUNK`] pixels, summed in pixel order, within a block of
-    /// [`PIXEL_BLOCK`] pixels the primary records first.
+    /// count: work items of `PIXEL_CHUNK` pixels, summed in pixel order, within a block of
+    /// `PIXEL_BLOCK` pixels the primary records first.
     pub fn adjoint(
         &self,
         pixels: &[u32],

@@ -3,16 +3,11 @@
 //! 1. Read the dataset and every training observation (checked: [`Dataset::training_observations`]);
 //!    every 8th view of each state (index ≡ 0 mod 8, the mip-NeRF 360 convention) is held out.
 //! 2. Back-project the training views ([`init::backproject`]), estimate each object's pose in
-//!    every state: point-cloud registration of its masked points ([`register::Pair`]s, one per
-//!    object and state, [`register::registrations`]), whose results are candidates for the
-//!    rendered alignment ([`align::object_poses_by_rendering`], which finds the right basin
-//!    where clouds cannot), whose poses ICP then polishes ([`register::Pair::polish`]) and
-//!    geometry chooses ([`register::Pair::best_fit`]); then that pose turned about the vertical,
-//!    polished, where geometry ties the texture decides ([`register::Pair::choose_turn`]);
-//!    ground truth only with `--oracle-poses`. Build the initial components
-//!    ([`init::initial_components`]).
+//!    every state ([`poses::estimate`]: point-cloud registration, the rendered alignment, an ICP
+//!    polish chosen by geometry, a turn the texture decides; [`poses::oracle`], the ground truth,
+//!    only with `--oracle-poses`). Build the initial components ([`init::initial_components`]).
 //! 3. Clean the labels with the graph cut ([`segment::segment`]) over the reference state.
-//! 4. Train ([`train::Trainer`]); at a third of the iterations, seed surfels where the render lies
+//! 4. Train ([`super::train::Trainer`]); at a third of the iterations, seed surfels where the render lies
 //!    behind the captured depth (eq. completion-mask). Then drop the object surfels grown
 //!    beneath the surface their object stands on ([`support::beneath_support`]); a resumed
 //!    finished run repeats only this step and the next.

@@ -10,7 +10,7 @@
 //!    the most to take different labels, so cuts run along creases and colour edges, such as
 //!    where an object rests on the floor.
 //! 4. Minimisation over {background, objects} by α-expansion (Boykov, Veksler, Zabih 2001),
-//!    each move a minimum cut from [`MaxFlow`](super::maxflow::MaxFlow).
+//!    each move a minimum cut from [`super::maxflow::MaxFlow`].
 
 use super::maxflow::MaxFlow;
 use crate::error::{Error, Result};

@@ -11,7 +11,7 @@
 //! Losses per view: L_RGB = 0.8 L1 + 0.2 D-SSIM on the capture's colour where its depth is
 //! valid (black elsewhere: the splats render over black and must leave the environment
 //! transparent), by default on display-encoded colours (sRGB, capture clamped to [0, 1]; the
-//! rendered colour passes through the state's colour matrix first), an opacity term |Â − 𝟙[D* > 0]| (eq. alpha-coverage, extended to push
+//! rendered colour passes through the state's colour matrix first), an opacity term |Â − 𝟙\[D* > 0\]| (eq. alpha-coverage, extended to push
 //! environment pixels to transparent), the scale regulariser (eq. scale-regularization), L1 to
 //! the reference depth, 1 − n̂·n* to the reference normals and, after a warm-up, 2DGS's depth-
 //! normal self-consistency (eqs. reconstruction-depth, reconstruction-normal).

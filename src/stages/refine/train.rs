@@ -8,7 +8,7 @@
 //!
 //! Per patch of `patch × patch` pixels (a patch, not scattered pixels, because the
 //! depth-derived normal of L_DN^ray needs each pixel's four neighbours):
-//! - L_α: |Σw − 𝟙[D* > 0]| (eq. alpha-coverage, extended as in stage 1 to push pixels that saw
+//! - L_α: |Σw − 𝟙\[D* > 0\]| (eq. alpha-coverage, extended as in stage 1 to push pixels that saw
 //!   the environment to transparent: those are where a false occluder shows), the batch's
 //!   surface pixels and its environment pixels each averaged and weighted one half;
 //! - L_D: eq. reconstruction-depth on the traced depth z̄ = Σw t / Σw (rays with d·forward = 1,
