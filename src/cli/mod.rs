@@ -831,6 +831,21 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
                 split(&s.heldout)
             );
         }
+        if let Some(a) = &report.albedo {
+            eprintln!(
+                "  base colour against the albedo pass: {:.1} % raw, {:.1} % after the median ratio",
+                100.0 * a.raw_error,
+                100.0 * a.scaled_error
+            );
+            if let Some(u) = &a.uniformity {
+                eprintln!(
+                    "  ghost shadows: {:.1} % of the {} pixels on {} surfaces of uniform albedo more than 15 % off their median",
+                    100.0 * u.ghost_share,
+                    u.pixels,
+                    u.surfaces
+                );
+            }
+        }
     }
     Ok(())
 }

@@ -319,7 +319,7 @@ pub fn page(r: &Report, a: &Assets) -> String {
          <h1>LightFuse evaluation</h1>\n<p>Dataset <code>{}</code>; relightable scene \
          <code>{}</code>; baked scene <code>{}</code>. {} spp, denoising: {}. Median albedo \
          ratio {:.3}, {:.3}, {:.3} over {} pixels. PSNR and SSIM on 8-bit sRGB, HDR PSNR on \
-         scene-linear radiance with the reference's peak; means over images. {} rays, {:.0} s.\
+         scene-linear radiance with the reference's peak; means over images. {} rays, {:.0} s.{}\
          </p>\n",
         esc(&r.dataset),
         esc(&r.dataset),
@@ -332,7 +332,17 @@ pub fn page(r: &Report, a: &Assets) -> String {
         r.albedo_ratio[2],
         r.albedo_pixels,
         r.rays,
-        r.seconds
+        r.seconds,
+        r.albedo_uniformity
+            .as_ref()
+            .map_or(String::new(), |u| format!(
+            " Base colour over the {} surfaces of uniform true albedo: {:.1} % of their {} pixels \
+             more than 15 % off their surface's median (ghost shadows), mean deviation {:.1} %.",
+            u.surfaces,
+            100.0 * u.ghost_share,
+            u.pixels,
+            100.0 * u.spread
+        ))
     );
     table(
         &mut s,

@@ -36,6 +36,14 @@ pub struct EnvFigures {
     pub log_rmse: f64,
     /// `log_rmse` of the best uniform map: the bar a recovery has to clear.
     pub log_rmse_uniform: f64,
+    /// `log_rmse` over the upper hemisphere alone (texel centres above the horizon, with their
+    /// own fit): the sky and the sun, which light a room, apart from the ground every capture
+    /// sees and that dominates a whole-sphere figure. 0 in reports written before the field.
+    #[serde(default)]
+    pub log_rmse_upper: f64,
+    /// `log_rmse_upper` of the best uniform map.
+    #[serde(default)]
+    pub log_rmse_upper_uniform: f64,
     /// Relative L1 error of the diffuse irradiance E(n) = ∫ L(ω) max(0, n·ω) dω over every
     /// normal n on the sphere, after a least-squares gain: what a Lambertian surface lit by the
     /// map sees, so it weighs the sun by the light it casts, not by its texel value.
@@ -219,6 +227,18 @@ pub fn compare_environments(recovered: &Environment, truth: &Environment) -> Env
         .flat_map(|y| std::iter::repeat_n(recovered.texel_solid_angle(y), w))
         .collect();
     let (lr, lt) = (luma(recovered), luma(&t));
+    // Row y's centre is above the horizon when y + 0.5 < height / 2 (row 0 is the zenith's).
+    let upper: Vec<f64> = omega
+        .iter()
+        .enumerate()
+        .map(|(i, &o)| {
+            if 2 * (i / w) + 1 < recovered.height {
+                o
+            } else {
+                0.0
+            }
+        })
+        .collect();
     let e_t = irradiance(&t);
     // The best uniform map has the truth's mean colour; its irradiance is that colour times π
     // everywhere (only its colour matters: the gain is fitted).
@@ -231,6 +251,8 @@ pub fn compare_environments(recovered: &Environment, truth: &Environment) -> Env
         texels: recovered.width * recovered.height,
         log_rmse: log_rmse(&lr, &lt, &omega),
         log_rmse_uniform: log_rmse(&vec![1.0; lt.len()], &lt, &omega),
+        log_rmse_upper: log_rmse(&lr, &lt, &upper),
+        log_rmse_upper_uniform: log_rmse(&vec![1.0; lt.len()], &lt, &upper),
         irradiance_error: fitted_relative_l1(&irradiance(recovered), &e_t),
         irradiance_error_uniform: fitted_relative_l1(&e_uniform, &e_t),
     }
@@ -247,6 +269,79 @@ pub struct AlbedoFigures {
     pub scaled_error: f64,
     /// Per channel, the median over pixels of truth / predicted (pixels with predicted > 1e-4).
     pub ratio: [f64; 3],
+    /// How uniform the recovered base colour is where the truth is ([`albedo_uniformity`]):
+    /// shadows or highlights of the captures baked into it show here. Absent in reports
+    /// written before the field, and when no surface qualifies.
+    #[serde(default)]
+    pub uniformity: Option<UniformityFigures>,
+}
+
+/// Over the surfaces whose true albedo is uniform, how much the recovered base colour varies
+/// ([`albedo_uniformity`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UniformityFigures {
+    /// Uniform surfaces found: distinct true albedos covering at least [`UNIFORM_MIN_PIXELS`]
+    /// pixels.
+    pub surfaces: usize,
+    /// Their pixels.
+    pub pixels: usize,
+    /// Share of those pixels whose recovered / true luminance ratio is more than
+    /// [`GHOST_TOLERANCE`] off their surface's median ratio: ghost shadows (a capture's shadow
+    /// painted into the base colour) and ghost highlights.
+    pub ghost_share: f64,
+    /// Mean over those pixels of |ratio / surface median − 1|.
+    pub spread: f64,
+}
+
+/// A true albedo counts as a uniform surface when this many pixel pairs have it.
+pub const UNIFORM_MIN_PIXELS: usize = 64;
+/// A pixel's ratio more than this far from its surface's median (relative) is a ghost.
+pub const GHOST_TOLERANCE: f64 = 0.15;
+
+/// Ghost shadows, measured: (predicted, true) base colour pairs grouped by the true albedo
+/// (quantised to 1/4096 per channel, so a uniform material's pixels fall together while
+/// textures scatter over many values: a checker's two colours are two uniform surfaces); each
+/// group of at least [`UNIFORM_MIN_PIXELS`] pixels is a surface whose recovered base colour
+/// should be uniform too, up to one gain. Per pixel the luminance ratio r = p / t; the share of
+/// pixels with |r / median_surface(r) − 1| > [`GHOST_TOLERANCE`], and the mean of that
+/// deviation. Pixels with a true luminance below 1e-3 are left out (no ratio). `None` when no
+/// surface qualifies.
+pub fn albedo_uniformity(pairs: &[([f32; 3], [f32; 3])]) -> Option<UniformityFigures> {
+    let luma = |c: [f32; 3]| (0..3).map(|k| LUMINANCE[k] * c[k] as f64).sum::<f64>();
+    let mut groups: std::collections::BTreeMap<[u32; 3], Vec<f64>> = Default::default();
+    for (p, t) in pairs {
+        let lt = luma(*t);
+        if lt < 1e-3 {
+            continue;
+        }
+        let key = t.map(|v| (v.clamp(0.0, 1.0) * 4096.0).round() as u32);
+        groups.entry(key).or_default().push(luma(*p) / lt);
+    }
+    let (mut surfaces, mut pixels, mut ghosts, mut deviation) = (0, 0, 0, 0.0f64);
+    for ratios in groups.values_mut() {
+        if ratios.len() < UNIFORM_MIN_PIXELS {
+            continue;
+        }
+        let m = crate::stats::median(ratios).expect("a surface has pixels");
+        if m <= 0.0 {
+            continue;
+        }
+        surfaces += 1;
+        for r in ratios.iter() {
+            let d = (r / m - 1.0).abs();
+            pixels += 1;
+            deviation += d;
+            if d > GHOST_TOLERANCE {
+                ghosts += 1;
+            }
+        }
+    }
+    (pixels > 0).then(|| UniformityFigures {
+        surfaces,
+        pixels,
+        ghost_share: ghosts as f64 / pixels as f64,
+        spread: deviation / pixels as f64,
+    })
 }
 
 /// Relative error per channel, Σ|p − t| / Σ t, averaged over the channels whose Σ t > 0.
@@ -300,6 +395,7 @@ pub fn compare_albedo(pairs: &[([f32; 3], [f32; 3])]) -> AlbedoFigures {
         raw_error: relative_error(pairs, [1.0; 3]),
         scaled_error: relative_error(pairs, gain),
         ratio,
+        uniformity: albedo_uniformity(pairs),
     }
 }
 
@@ -537,5 +633,37 @@ mod tests {
             (1, 1.0, None)
         );
         assert!(f[2].pixels == 0 && f[2].metallic.is_nan());
+    }
+
+    #[test]
+    fn ghost_shadows_are_the_pixels_off_their_uniform_surfaces_median() {
+        // A uniform grey floor (1,000 pixels) recovered at 0.9x its albedo but for a dark blob
+        // of 120 pixels at 0.5x (a baked shadow), a uniform red wall (200 pixels, exact), and a
+        // texture whose 300 pixels all differ (no uniform surface: left out).
+        let mut pairs = Vec::new();
+        for i in 0..1000 {
+            let k = if i < 120 { 0.5 } else { 0.9 };
+            pairs.push(([0.4 * k; 3], [0.4f32; 3]));
+        }
+        for _ in 0..200 {
+            pairs.push(([0.6, 0.1, 0.1], [0.6, 0.1, 0.1]));
+        }
+        for i in 0..300 {
+            let t = 0.05 + i as f32 * 0.0005;
+            pairs.push(([0.1; 3], [t; 3]));
+        }
+        let u = albedo_uniformity(&pairs).expect("two uniform surfaces");
+        assert_eq!((u.surfaces, u.pixels), (2, 1200));
+        assert!((u.ghost_share - 120.0 / 1200.0).abs() < 1e-12, "{u:?}");
+        // The blob's pixels are 0.5 / 0.9 − 1 off the floor's median 0.9.
+        let blob = (1.0 - 0.5f64 / 0.9) * 120.0 / 1200.0;
+        assert!((u.spread - blob).abs() < 1e-6, "{u:?}");
+        // A uniform gain alone is no ghost; nothing uniform at all is no figure.
+        let scaled: Vec<_> = pairs[120..1000]
+            .iter()
+            .map(|&(p, t)| (p.map(|v| v * 3.0), t))
+            .collect();
+        assert_eq!(albedo_uniformity(&scaled).unwrap().ghost_share, 0.0);
+        assert!(albedo_uniformity(&pairs[1200..]).is_none());
     }
 }

@@ -381,6 +381,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         selection: opts.selection,
         albedo_ratio: albedo.ratio,
         albedo_pixels: albedo.pixels,
+        albedo_uniformity: albedo.uniformity.clone(),
         relighting: BTreeMap::new(),
         synthesis: BTreeMap::new(),
         runs: figures,

@@ -187,6 +187,12 @@ pub struct Report {
     /// Per-channel median of true / recovered base colour over the test views' surface pixels.
     pub albedo_ratio: [f64; 3],
     pub albedo_pixels: usize,
+    /// Ghost shadows in the test views' base colour: over surfaces whose true albedo is
+    /// uniform, the share of pixels more than 15 % off their surface's median ratio
+    /// ([`crate::eval::lighting::albedo_uniformity`]). Absent in reports written before the
+    /// field, or when no surface qualifies.
+    #[serde(default)]
+    pub albedo_uniformity: Option<crate::eval::lighting::UniformityFigures>,
     /// Table 1: the mean over every relighting run's images.
     pub relighting: BTreeMap<String, RowFigures>,
     /// Table 2: the mean over every synthesis run's images (empty without such runs).
@@ -225,6 +231,15 @@ pub fn markdown(r: &Report) -> String {
         "Evaluation of `{}` on `{}`: {} spp, denoising: {}; median albedo ratio {:.3}, {:.3}, {:.3} ({} pixels). PSNR and SSIM on 8-bit sRGB, HDR PSNR on scene-linear radiance with the reference's peak; means over images.\n\n",
         r.relightable, r.dataset, r.spp, r.denoise, r.albedo_ratio[0], r.albedo_ratio[1], r.albedo_ratio[2], r.albedo_pixels
     ));
+    if let Some(u) = &r.albedo_uniformity {
+        s.push_str(&format!(
+            "Base colour over the {} surfaces of uniform true albedo ({} pixels): {:.1} % of pixels more than 15 % off their surface's median (ghost shadows), mean deviation {:.1} %.\n\n",
+            u.surfaces,
+            u.pixels,
+            100.0 * u.ghost_share,
+            100.0 * u.spread
+        ));
+    }
     if r.selection != Selection::ALL {
         let sel = r.selection;
         let rows: Vec<&str> = [
