@@ -517,7 +517,7 @@ fn edit(cli: &Cli, a: &EditArgs) -> Result<()> {
         None => None,
     };
     let environment = match &a.env {
-        Some(p) => Some((lightfuse::io::exr::read_latlong(p, None)?, a.env_rotation)),
+        Some(p) => Some((lightfuse::io::exr::read_lighting(p, None)?, a.env_rotation)),
         None => None,
     };
     scene.apply_edit(

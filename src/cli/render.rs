@@ -181,7 +181,7 @@ fn select_environment<'s>(
     a: &RenderArgs,
 ) -> Result<(std::borrow::Cow<'s, Environment>, f32, String)> {
     if let Some(path) = &a.env {
-        let env = lightfuse::io::exr::read_latlong(path, None)?;
+        let env = lightfuse::io::exr::read_lighting(path, None)?;
         return Ok((
             std::borrow::Cow::Owned(env),
             a.env_rotation.unwrap_or(0.0),

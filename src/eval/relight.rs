@@ -172,7 +172,7 @@ fn run_environment(
         ));
     }
     let path = d.path(run.environment);
-    let env = crate::io::exr::read_latlong(&path, Some(run.environment))?;
+    let env = crate::io::exr::read_lighting(&path, Some(run.environment))?;
     Ok((
         EnvMap::new(&env, 0.0),
         format!("dataset: {}", run.environment),

@@ -315,7 +315,7 @@ impl Dataset {
         let Some(rel) = self.states[k].environment.as_deref() else {
             return Ok(None);
         };
-        let env = super::exr::read_latlong(&self.path(rel), Some(&self.states[k].name))?;
+        let env = super::exr::read_lighting(&self.path(rel), Some(&self.states[k].name))?;
         Ok(Some(env))
     }
 
@@ -570,7 +570,7 @@ pub fn attach_ground_truth(
             });
         }
         let path = d.path(rel);
-        let mut env = super::exr::read_latlong(&path, None)?;
+        let mut env = super::exr::read_lighting(&path, None)?;
         if let Some((w, h)) = env_size {
             env = env.resample(w, h);
         }

@@ -35,10 +35,10 @@ fn exr_err(file: &Path, e: exr::error::Error) -> Error {
     }
 }
 
-/// A user's (or a dataset's) environment map, ready to light with: an EXR with R, G and B
-/// ([`read_environment`]), checked to be an equirectangular lat-long map (width = 2 x height),
-/// negative texels (ringing of a resampler, which no light emits) set to zero. Named `name`,
-/// or the file's stem. Every command that takes an environment from a file reads it here.
+/// An environment map from a file, checked: an EXR with R, G and B ([`read_environment`]) that
+/// is an equirectangular lat-long map (width = 2 x height), its texels as stored. Named `name`,
+/// or the file's stem. `lightfuse env` converts with it; everything that lights a scene reads
+/// through [`read_lighting`].
 pub fn read_latlong(path: &Path, name: Option<&str>) -> Result<Environment> {
     let stem = || {
         path.file_stem()
@@ -46,14 +46,22 @@ pub fn read_latlong(path: &Path, name: Option<&str>) -> Result<Environment> {
             .unwrap_or_default()
     };
     let name = name.map_or_else(stem, str::to_string);
-    let mut env = read_environment(path, &name)?;
+    let env = read_environment(path, &name)?;
     env.check_latlong(path, "EXR data window")?;
+    Ok(env)
+}
+
+/// A user's (or a dataset's) environment map, ready to light with: [`read_latlong`], negative
+/// texels (a lossy codec's or a resampler's ringing, which no light emits) set to zero. Every
+/// command that lights with a map from a file reads it here.
+pub fn read_lighting(path: &Path, name: Option<&str>) -> Result<Environment> {
+    let mut env = read_latlong(path, name)?;
     env.clamp_negative();
     Ok(env)
 }
 
 /// Reads an RGB environment from an EXR file as it is stored (scene files embed theirs; a
-/// map from a user goes through [`read_latlong`]). Extra channels (A, ...) are ignored; a file
+/// map from a user goes through [`read_lighting`]). Extra channels (A, ...) are ignored; a file
 /// without R, G and B is refused.
 pub fn read_environment(path: &Path, name: &str) -> Result<Environment> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
