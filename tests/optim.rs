@@ -755,6 +755,75 @@ fn adam_converges_on_a_quadratic() {
     }
 }
 
+/// [`Adam::step_shared`] against an f64 reference of its definition over 20 steps of random
+/// gradients (one second moment, the mean of g² over the group, shared by every parameter; the
+/// bias corrections and the first moment as per-parameter Adam), with the step limit active on
+/// the parameter whose gradient is 30× the others': f32 state against f64, ≤ 1e-5 relative.
+/// Then what it is for: with gradients in a fixed ratio of 10, the parameters' moves keep that
+/// ratio, where per-parameter Adam moves both alike.
+#[test]
+fn adam_shared_moment_matches_its_reference_and_keeps_gradient_ratios() {
+    let (n, lr, max_step) = (16usize, 0.05f64, 3.0f64);
+    let mut rng = SplitMix(31);
+    let mut adam = Adam::new();
+    let g = adam.add_group("env", n, 1, Schedule::Constant { lr: lr as f32 });
+    let mut x = vec![0.0f32; n];
+    let (mut xr, mut m, mut v) = (vec![0.0f64; n], vec![0.0f64; n], 0.0f64);
+    let mut limited = 0;
+    for t in 1..=20 {
+        let grad: Vec<f32> = (0..n)
+            .map(|i| rng.range(-1.0, 1.0) * if i == 0 { 30.0 } else { 1.0 })
+            .collect();
+        adam.step_shared(g, &mut x, &grad, max_step as f32);
+        let mean_sq = grad.iter().map(|&g| (g as f64).powi(2)).sum::<f64>() / n as f64;
+        v = 0.999 * v + 0.001 * mean_sq;
+        let (bc1, bc2) = (1.0 - 0.9f64.powi(t), 1.0 - 0.999f64.powi(t));
+        for i in 0..n {
+            m[i] = 0.9 * m[i] + 0.1 * grad[i] as f64;
+            let d = lr / bc1 * m[i] / ((v / bc2).sqrt() + 1e-15);
+            limited += (d.abs() > max_step * lr) as usize;
+            xr[i] -= d.clamp(-max_step * lr, max_step * lr);
+        }
+        for i in 0..n {
+            let tol = 1e-5 * xr[i].abs().max(lr);
+            assert!(
+                (x[i] as f64 - xr[i]).abs() < tol,
+                "step {t}, parameter {i}: {} vs reference {}",
+                x[i],
+                xr[i]
+            );
+        }
+    }
+    assert!(
+        limited > 0,
+        "the limit was never reached: the test does not check it"
+    );
+
+    let moves = |shared: bool| {
+        let mut adam = Adam::new();
+        let g = adam.add_group("env", 2, 1, Schedule::Constant { lr: 0.01 });
+        let mut x = [0.0f32; 2];
+        for _ in 0..50 {
+            if shared {
+                adam.step_shared(g, &mut x, &[1.0, 0.1], 100.0);
+            } else {
+                adam.step(g, &mut x, &[1.0, 0.1]);
+            }
+        }
+        x[0] / x[1]
+    };
+    assert!(
+        (moves(true) - 10.0).abs() < 1e-3,
+        "shared: ratio {}",
+        moves(true)
+    );
+    assert!(
+        (moves(false) - 1.0).abs() < 1e-3,
+        "per parameter: ratio {}",
+        moves(false)
+    );
+}
+
 #[test]
 fn schedule_endpoints() {
     let s = Schedule::Exponential {

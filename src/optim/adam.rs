@@ -231,6 +231,48 @@ impl Adam {
             });
     }
 
+    /// One update of group `g` whose second moment is shared by the whole group (NovoGrad's
+    /// layer-wise moment, Ginsburg et al. 2019): v ← β2 v + (1 − β2) mean(g²) for every
+    /// parameter, the first moment and the step as [`Adam::step`], each parameter's step then
+    /// limited to `max_step` times the learning rate. Parameters keep their relative gradient
+    /// sizes: one whose gradient is consistently ten times another's moves ten times as far,
+    /// where per-parameter Adam moves both by about the learning rate. The limit bounds the
+    /// step of a parameter that carries nearly all the gradient (√len times the learning rate
+    /// unbounded).
+    pub fn step_shared(&mut self, g: usize, params: &mut [f32], grads: &[f32], max_step: f32) {
+        let (b1, b2) = (self.beta1, self.beta2);
+        let (c1, c2) = ((1.0 - b1) as f32, (1.0 - b2) as f32);
+        let eps = self.eps as f32;
+        let group = &mut self.groups[g];
+        assert_eq!(
+            params.len(),
+            group.len(),
+            "group {}: parameters",
+            group.name
+        );
+        assert_eq!(grads.len(), params.len(), "group {}: gradients", group.name);
+        let mean_sq = (grads.iter().map(|&g| g as f64 * g as f64).sum::<f64>()
+            / grads.len().max(1) as f64) as f32;
+        let lr = group.schedule.lr(group.step) as f64;
+        group.step += 1;
+        let t = group.step as i32;
+        let step_size = (lr / (1.0 - b1.powi(t))) as f32;
+        let inv_sqrt_bc2 = (1.0 / (1.0 - b2.powi(t)).sqrt()) as f32;
+        let limit = max_step * lr as f32;
+        let (b1, b2) = (b1 as f32, b2 as f32);
+        for (((p, &g), m), v) in params
+            .iter_mut()
+            .zip(grads)
+            .zip(&mut group.exp_avg)
+            .zip(&mut group.exp_avg_sq)
+        {
+            *m = b1 * *m + c1 * g;
+            *v = b2 * *v + c2 * mean_sq;
+            let d = step_size * *m / (v.sqrt() * inv_sqrt_bc2 + eps);
+            *p -= d.clamp(-limit, limit);
+        }
+    }
+
     /// Densification: `count` new points at the end of group `g`, with zero moments (3DGS).
     pub fn append_points(&mut self, g: usize, count: usize) {
         let group = &mut self.groups[g];
