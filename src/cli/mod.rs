@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 use lightfuse::error::{Error, Result};
 use lightfuse::io::work::WorkDir;
 use lightfuse::shade::estimator::Strategy;
-use lightfuse::stages::invert::train::{Loss, SppSchedule};
+use lightfuse::stages::invert::train::{EnvUpdate, Loss, SppSchedule};
 use lightfuse::stages::reconstruct::train::PoseRefinement;
 use lightfuse::stages::Preset;
 use std::path::PathBuf;
@@ -186,6 +186,11 @@ pub struct InvertArgs {
     /// `stages::invert::train::Loss`); default: the preset's.
     #[arg(long, value_enum)]
     pub loss: Option<Loss>,
+    /// How the environments' Adam steps are normalised: texel (per texel, the paper's) or
+    /// shared (one second moment per map: bright, well-constrained directions such as a sun
+    /// move further than noise; `stages::invert::train::EnvUpdate`); default: the preset's.
+    #[arg(long, value_enum)]
+    pub env_update: Option<EnvUpdate>,
     /// Sub-pixel positions per training pixel whose primary records are traced once and
     /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
     /// memory in proportion (the report states it).
@@ -774,6 +779,9 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     settings.estimator = a.estimator;
     if let Some(l) = a.loss {
         settings.loss = l;
+    }
+    if let Some(u) = a.env_update {
+        settings.env_update = u;
     }
     if a.eval_spp == 0 || a.eval_stride == 0 {
         return Err(Error::Usage(
