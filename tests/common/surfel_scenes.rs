@@ -107,3 +107,45 @@ pub fn mat(base: [f32; 3], metallic: f32, roughness: f32) -> Material {
         roughness,
     }
 }
+
+/// An axis-aligned box standing on y = `base.y` centred on `base` in x and z, of size `size`
+/// (x, y, z), its five visible faces (no bottom) tiled by surfels `spacing` apart, normals out.
+pub fn cuboid(base: Vec3, size: Vec3, spacing: f32, m: Material) -> Surfels {
+    let mut s = Surfels::with_sh_degree(0);
+    let c = base + Vec3::new(0.0, size.y / 2.0, 0.0);
+    let h = size / 2.0;
+    // (normal, the face's two in-plane axes): +X, −X, +Y, +Z, −Z.
+    let faces = [
+        (Vec3::X, Vec3::Y, Vec3::Z),
+        (Vec3::NEG_X, Vec3::Y, Vec3::Z),
+        (Vec3::Y, Vec3::X, Vec3::Z),
+        (Vec3::Z, Vec3::X, Vec3::Y),
+        (Vec3::NEG_Z, Vec3::X, Vec3::Y),
+    ];
+    for (n, a, b) in faces {
+        let q = Quat::from_rotation_arc(Vec3::Z, n);
+        let (ea, eb) = ((h * a).length(), (h * b).length());
+        let centre = c + n * (h * n).length();
+        let (ka, kb) = (
+            (2.0 * ea / spacing).ceil() as i32,
+            (2.0 * eb / spacing).ceil() as i32,
+        );
+        for i in 0..=ka {
+            for j in 0..=kb {
+                let u = -ea + 2.0 * ea * i as f32 / ka as f32;
+                let v = -eb + 2.0 * eb * j as f32 / kb as f32;
+                s.push(
+                    (centre + u * a + v * b).to_array(),
+                    q.to_array(),
+                    [spacing, spacing],
+                    0.99,
+                    &[[0.0; 3]],
+                    m.base_color,
+                    m.metallic,
+                    m.roughness,
+                );
+            }
+        }
+    }
+    s
+}

@@ -1,0 +1,404 @@
+//! Issue 44's check that stage 3 separates material from lighting: a plain (untextured) floor
+//! and a box moved between two states, each state under its own sky with a strong sun (hard
+//! shadows), rendered by LightFuse itself and inverted from grey with the fast preset's
+//! schedule ([`Settings::fast`], the environment at 64×32 to keep the test short).
+//!
+//! The floor's true base colour is one value everywhere, so any difference between the floor
+//! where the box cast a shadow in a training state and the floor no shadow ever touched is light
+//! baked into paint: the ghost shadow that comes back under every new light. The sun has to be
+//! found from the shadows and the shading: no view sees it (one looks at the sky near the
+//! horizon, away from the sun, so the environment's scale is not free).
+//!
+//! What is asserted: base colour inside the training states' shadows within 5 % of the open
+//! floor's (per channel, means over the pixels of every view that see each), and each state's
+//! recovered sun (the brightest texel after a 3×3 blur) within 10° of the true one. The issue's
+//! bounds, not a measurement's margins.
+//!
+//! **It fails today**, so it is `#[ignore]`d until stage 3 is fixed (issue 44); run it with
+//! `cargo test --test separation -- --ignored --nocapture` (~80 s after the build). Measured
+//! (2026-11-28, this seed):
+//! - the fast preset as it is: shadow / open floor 0.911, 0.915, 0.909 (a ghost 9 % dark);
+//!   suns 9.7° and 8.5° off; the sun carries 12 % and 5 % of a level floor's irradiance (truth
+//!   85 %): the recovered skies are a broad glow 3-10× too bright wherever no view looks;
+//! - with `EnvUpdate::Shared`: suns 1.7° and 3.0° off (the true texel), carrying 19 % and
+//!   18 %; the ghost unchanged (0.898, 0.908, 0.899); with a 10× larger step limit the same;
+//! - with lighting alone for 800 iterations instead of 267: 0.908, 0.938, 0.912;
+//! - with `Loss::WeightedL2`: a deeper ghost (0.72-0.79);
+//! - with the true environments held fixed: 1.016, 1.015, 1.016: the measure is sound, and
+//!   what is missing is lighting that casts the shadows (the paint takes them instead).
+
+use glam::Vec3;
+use lightfuse::io::dataset::Observation;
+use lightfuse::scene::{Camera, Environment, Rigid, Scene, Surfels};
+use lightfuse::shade::envmap::{uv_to_direction, EnvMap};
+use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
+use lightfuse::stages::invert::cache::TrainState;
+use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings};
+use lightfuse::trace::TraceScene;
+
+mod common;
+use common::surfel_scenes::{cuboid, floor, mat, scene_of};
+
+const FLOOR: [f32; 3] = [0.55, 0.5, 0.45];
+const BOX: [f32; 3] = [0.2, 0.35, 0.6];
+const BOX_SIZE: Vec3 = Vec3::new(0.4, 0.7, 0.4);
+const EW: usize = 64;
+const EH: usize = 32;
+
+/// The box's centre (x, z) in each state.
+const BOX_AT: [[f32; 2]; 2] = [[-0.45, -0.2], [0.5, 0.35]];
+
+/// Each state's sun: unit direction towards it (elevation 35° and 45°, azimuths ~140° apart).
+fn suns() -> [Vec3; 2] {
+    let dir = |elev: f32, azim: f32| {
+        let (e, a) = (elev.to_radians(), azim.to_radians());
+        Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin())
+    };
+    [dir(35.0, 30.0), dir(45.0, 170.0)]
+}
+
+/// A pale sky (brighter towards the zenith), a dim ground and a sun of ~3° half-width
+/// (cos⁵¹²) carrying about three quarters of a level floor's irradiance: hard shadows.
+fn sky(sun: Vec3, tint: [f32; 3]) -> Environment {
+    let px = (0..EW * EH)
+        .map(|i| {
+            let (x, y) = (i % EW, i / EW);
+            let d = uv_to_direction([(x as f32 + 0.5) / EW as f32, (y as f32 + 0.5) / EH as f32]);
+            let up = d.y.max(0.0);
+            let sunny = d.dot(sun).max(0.0).powi(512) * 600.0;
+            let ground = if d.y < 0.0 { 0.15 } else { 0.0 };
+            [0, 1, 2].map(|c| (0.15 + 0.25 * up) * tint[c] + sunny + ground)
+        })
+        .collect();
+    Environment::new("sky", EW, EH, px)
+}
+
+struct Truth {
+    scene: Scene,
+    envs: Vec<Environment>,
+    suns: [Vec3; 2],
+}
+
+fn truth() -> Truth {
+    let mut scene = scene_of(vec![
+        floor(0.0, 2.5, 0.05, mat(FLOOR, 0.0, 0.9)),
+        cuboid(Vec3::ZERO, BOX_SIZE, 0.04, mat(BOX, 0.0, 0.5)),
+    ]);
+    let at = |[x, z]: [f32; 2]| Rigid {
+        rotation: [0.0, 0.0, 0.0, 1.0],
+        translation: [x, 0.0, z],
+    };
+    scene.states[0].transforms[1] = at(BOX_AT[0]);
+    let mut second = scene.states[0].clone();
+    second.name = "state1".into();
+    second.transforms[1] = at(BOX_AT[1]);
+    scene.states.push(second);
+    let suns = suns();
+    Truth {
+        scene,
+        envs: vec![
+            sky(suns[0], [0.6, 0.75, 1.0]),
+            sky(suns[1], [0.8, 0.8, 0.9]),
+        ],
+        suns,
+    }
+}
+
+/// Per state: six 48×48 views round the scene looking down at it, and one low view looking
+/// level over the floor at the sky, opposite that state's sun. Rendered at 96 spp.
+fn captures(t: &Truth) -> Vec<Vec<Observation>> {
+    let trace = TraceScene::new(&t.scene);
+    let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
+    t.scene
+        .states
+        .iter()
+        .enumerate()
+        .map(|(k, st)| {
+            let placed = trace.place_state(st);
+            let map = EnvMap::new(&t.envs[k], 0.0);
+            let est = Estimator::new(&placed, &map, self_hit_epsilon(&t.scene, st));
+            let mut cams: Vec<Camera> = (0..6)
+                .map(|i| {
+                    let a = (i as f32 * 60.0 + 15.0 * k as f32).to_radians();
+                    let eye = [2.6 * a.cos(), 1.6 + 0.3 * (i % 2) as f32, 2.6 * a.sin()];
+                    Camera::look_at(eye, [0.0, 0.0, 0.0], 48, 48, 40.0)
+                })
+                .collect();
+            let away = -Vec3::new(t.suns[k].x, 0.0, t.suns[k].z).normalize();
+            let eye = -2.0 * away + Vec3::new(0.0, 0.4, 0.0);
+            let target = eye + away + Vec3::new(0.0, 0.15, 0.0);
+            cams.push(Camera::look_at(
+                eye.to_array(),
+                target.to_array(),
+                48,
+                48,
+                30.0,
+            ));
+            cams.into_iter()
+                .enumerate()
+                .map(|(v, cam)| {
+                    let n = cam.w * cam.h;
+                    let pixels: Vec<_> = (0..n)
+                        .map(|i| est.pixel(&cam, &filter, (i % cam.w, i / cam.w), 96, 91))
+                        .collect();
+                    Observation {
+                        state: k,
+                        view: v,
+                        camera: cam,
+                        rgb: pixels.iter().map(|p| p.rgb).collect(),
+                        depth: pixels.iter().map(|p| p.depth).collect(),
+                        normal: pixels.iter().map(|p| p.normal).collect(),
+                        mask: vec![0; n as usize],
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Whether the ray from floor point `p` towards `dir` passes through the box at `at`, its
+/// half-extents grown by `grow` (negative: shrunk).
+fn ray_hits_box(p: Vec3, dir: Vec3, at: [f32; 2], grow: f32) -> bool {
+    let h = BOX_SIZE / 2.0 + Vec3::splat(grow);
+    let c = Vec3::new(at[0], BOX_SIZE.y / 2.0, at[1]);
+    let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
+    for a in 0..3 {
+        let (o, d) = (p[a] - c[a], dir[a]);
+        if d.abs() < 1e-9 {
+            if o.abs() > h[a] {
+                return false;
+            }
+            continue;
+        }
+        let (ta, tb) = ((-h[a] - o) / d, (h[a] - o) / d);
+        t0 = t0.max(ta.min(tb));
+        t1 = t1.min(ta.max(tb));
+    }
+    t0 <= t1
+}
+
+/// Where a floor point stands in the training states: under the box in one (never compared),
+/// shadowed by it in one (well inside the shadow: the box shrunk by 4 cm still blocks the
+/// sun), or lit in both (well clear: the box grown by 6 cm, past the sun's penumbra, misses).
+#[derive(PartialEq)]
+enum Floor {
+    Covered,
+    Shadowed,
+    Open,
+    Edge,
+}
+
+fn classify(p: Vec3, suns: &[Vec3; 2]) -> Floor {
+    let m = 0.06;
+    let h = BOX_SIZE / 2.0;
+    if BOX_AT
+        .iter()
+        .any(|a| (p.x - a[0]).abs() < h.x + m && (p.z - a[1]).abs() < h.z + m)
+    {
+        return Floor::Covered;
+    }
+    if (0..2).any(|k| ray_hits_box(p, suns[k], BOX_AT[k], -0.04)) {
+        Floor::Shadowed
+    } else if (0..2).all(|k| !ray_hits_box(p, suns[k], BOX_AT[k], m)) {
+        Floor::Open
+    } else {
+        Floor::Edge
+    }
+}
+
+/// Mean recovered base colour of the floor pixels in shadow and in the open, over every view
+/// of every state, and their pixel counts: each pixel whose capture's depth is the floor's
+/// (the box does not stand in front) is classified by its point on the floor, and its base
+/// colour read by compositing the floor's trained surfels alone along its centre ray.
+fn floor_base_colour(
+    t: &Truth,
+    obs: &[Vec<Observation>],
+    trained: &Surfels,
+) -> ([f64; 3], usize, [f64; 3], usize) {
+    let trace = TraceScene::from_components(&[trained]);
+    let placed = trace.place(&[Rigid::IDENTITY]);
+    let (mut shadow, mut ns, mut open, mut no) = ([0.0f64; 3], 0, [0.0f64; 3], 0);
+    for views in obs {
+        for o in views {
+            let fwd = Vec3::new(
+                -o.camera.transform_matrix[0][2],
+                -o.camera.transform_matrix[1][2],
+                -o.camera.transform_matrix[2][2],
+            );
+            for y in 0..o.camera.h {
+                for x in 0..o.camera.w {
+                    let i = (y * o.camera.w + x) as usize;
+                    let (org, d) = o.camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+                    let (org, d) = (Vec3::from(org), Vec3::from(d));
+                    if d.y > -1e-3 {
+                        continue;
+                    }
+                    let tf = -org.y / d.y;
+                    let planar = tf * d.dot(fwd);
+                    if (o.depth[i] - planar).abs() > 0.01 {
+                        continue;
+                    }
+                    let class = classify(org + tf * d, &t.suns);
+                    if class != Floor::Shadowed && class != Floor::Open {
+                        continue;
+                    }
+                    let rec = placed.composite(org.to_array(), d.to_array(), 0.0, f32::INFINITY);
+                    if rec.alpha < 0.9 {
+                        continue;
+                    }
+                    let b = rec.mean_base_color();
+                    let (acc, n) = if class == Floor::Shadowed {
+                        (&mut shadow, &mut ns)
+                    } else {
+                        (&mut open, &mut no)
+                    };
+                    for c in 0..3 {
+                        acc[c] += b[c] as f64;
+                    }
+                    *n += 1;
+                }
+            }
+        }
+    }
+    (
+        shadow.map(|v| v / ns.max(1) as f64),
+        ns,
+        open.map(|v| v / no.max(1) as f64),
+        no,
+    )
+}
+
+/// The direction of `env`'s brightest texel after a 3×3 box blur of its luminance (wrapping
+/// round in longitude), through the texel's centre.
+fn brightest(env: &Environment) -> Vec3 {
+    let (w, h) = (env.width, env.height);
+    let lum = |x: usize, y: usize| {
+        let p = env.pixels[y * w + x];
+        0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]
+    };
+    let mut best = (f32::MIN, 0, 0);
+    for y in 1..h - 1 {
+        for x in 0..w {
+            let mut s = 0.0;
+            for dy in [-1i64, 0, 1] {
+                for dx in [-1i64, 0, 1] {
+                    let xx = (x as i64 + dx).rem_euclid(w as i64) as usize;
+                    s += lum(xx, (y as i64 + dy) as usize);
+                }
+            }
+            if s > best.0 {
+                best = (s, x, y);
+            }
+        }
+    }
+    uv_to_direction([
+        (best.1 as f32 + 0.5) / w as f32,
+        (best.2 as f32 + 0.5) / h as f32,
+    ])
+}
+
+#[test]
+#[ignore = "issue 44: stage 3 bakes the shadows into the floor today (0.91 of the open floor)"]
+fn shadows_are_explained_by_occlusion_not_paint() {
+    let t = truth();
+    let obs = captures(&t);
+    let mut scene = t.scene.clone();
+    let states: Vec<TrainState> = obs
+        .iter()
+        .enumerate()
+        .map(|(k, views)| TrainState {
+            views: views.iter().collect(),
+            transforms: scene.states[k].transforms.clone(),
+            eps: self_hit_epsilon(&scene, &scene.states[k]),
+        })
+        .collect();
+    let init: Vec<Environment> = states
+        .iter()
+        .map(|s| initial_environment(&s.views, EW, EH))
+        .collect();
+    let settings = Settings {
+        env_width: EW as u32,
+        env_height: EH as u32,
+        ..Settings::fast()
+    };
+    // Grey start, as stage 3 starts.
+    for c in &mut scene.components {
+        for i in 0..c.surfels.len() {
+            c.surfels.base_color[i] = [settings.init_base_color; 3];
+            c.surfels.metallic[i] = settings.init_metallic;
+            c.surfels.roughness[i] = settings.init_roughness;
+        }
+    }
+    let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
+    let refs: Vec<&Surfels> = surfels.iter().collect();
+    let mut inv = Inverter::new(settings, &refs, &init);
+    let mut trace = TraceScene::from_components(&refs);
+    while inv.iteration < inv.settings.iterations {
+        inv.step(&mut trace, &mut surfels, &states);
+    }
+    inv.write_materials(&mut surfels);
+
+    let (shadow, ns, open, no) = floor_base_colour(&t, &obs, &surfels[0]);
+    let ratio: Vec<f64> = (0..3).map(|c| shadow[c] / open[c]).collect();
+    let angles: Vec<f32> = (0..2)
+        .map(|k| {
+            let got = brightest(&inv.environment(k, "e"));
+            got.dot(t.suns[k]).clamp(-1.0, 1.0).acos().to_degrees()
+        })
+        .collect();
+    for k in 0..2 {
+        let e = inv.environment(k, "e");
+        println!(
+            "state {k}: sun share of floor irradiance {:.3} (truth {:.3}); irradiance {:.3?} (truth {:.3?})",
+            sun_share(&e, t.suns[k]).0,
+            sun_share(&t.envs[k], t.suns[k]).0,
+            sun_share(&e, t.suns[k]).1,
+            sun_share(&t.envs[k], t.suns[k]).1
+        );
+    }
+    println!(
+        "floor base colour: shadow {shadow:.3?} ({ns} px), open {open:.3?} ({no} px), \
+         ratio {ratio:.3?}, truth {FLOOR:?}; sun direction error {angles:.1?}°"
+    );
+    assert!(
+        ns > 200 && no > 2000,
+        "too few pixels: {ns} shadow, {no} open"
+    );
+    for (c, r) in ratio.iter().enumerate() {
+        assert!(
+            (r - 1.0).abs() <= 0.05,
+            "channel {c}: base colour in the training shadows is {r:.3}× the open floor's"
+        );
+    }
+    for (k, a) in angles.iter().enumerate() {
+        assert!(
+            *a <= 10.0,
+            "state {k}: recovered sun {a:.1}° from the truth"
+        );
+    }
+}
+
+/// Share of a level floor's irradiance from within 8° of `sun`, and the irradiance.
+fn sun_share(env: &Environment, sun: Vec3) -> (f64, [f64; 3]) {
+    let (w, h) = (env.width, env.height);
+    let (mut near, mut all) = (0.0f64, [0.0f64; 3]);
+    for y in 0..h {
+        let sa = env.texel_solid_angle(y);
+        for x in 0..w {
+            let d = uv_to_direction([(x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32]);
+            if d.y <= 0.0 {
+                continue;
+            }
+            let p = env.pixels[y * w + x];
+            let l = (0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]) as f64 * d.y as f64 * sa;
+            for c in 0..3 {
+                all[c] += p[c] as f64 * d.y as f64 * sa;
+            }
+            if d.dot(sun) > 8f32.to_radians().cos() {
+                near += l;
+            }
+        }
+    }
+    let lum = 0.2126 * all[0] + 0.7152 * all[1] + 0.0722 * all[2];
+    (near / lum, all)
+}
