@@ -147,4 +147,46 @@ impl<const K: usize> KdTree<K> {
             }
         }
     }
+
+    /// Every point strictly closer than √`max_d2` to `q`, appended to `out` as (index in the
+    /// input, squared distance), in the tree's order.
+    pub fn within(&self, q: &[f32; K], max_d2: f32, out: &mut Vec<(usize, f32)>) {
+        if !self.points.is_empty() {
+            self.collect(0, q, max_d2, out);
+        }
+    }
+
+    fn collect(&self, node: u32, q: &[f32; K], max_d2: f32, out: &mut Vec<(usize, f32)>) {
+        match self.nodes[node as usize] {
+            Node::Leaf { start, end } => {
+                for j in start as usize..end as usize {
+                    let p = &self.points[j];
+                    let mut d2 = 0.0;
+                    for d in 0..K {
+                        let e = p[d] - q[d];
+                        d2 += e * e;
+                    }
+                    if d2 < max_d2 {
+                        out.push((self.index[j] as usize, d2));
+                    }
+                }
+            }
+            Node::Split {
+                dim,
+                value,
+                left,
+                right,
+            } => {
+                let diff = q[dim as usize] - value;
+                // Points equal to `value` may sit on either side of a median split: a side is
+                // skipped only when the query is strictly farther than the radius from it.
+                if diff < 0.0 || diff * diff < max_d2 {
+                    self.collect(left, q, max_d2, out);
+                }
+                if diff >= 0.0 || diff * diff < max_d2 {
+                    self.collect(right, q, max_d2, out);
+                }
+            }
+        }
+    }
 }

@@ -55,6 +55,20 @@ fn check_tree<const K: usize>(seed: u64, n: usize) {
         let r2 = bd2 * 1.5;
         assert!(tree.nearest_within(&q, r2).is_some());
         assert!(tree.nearest_within(&q, bd2).is_none(), "strictly closer");
+        // `within`: the same set as a scan of every point, at radii holding a few to hundreds
+        // (duplicates and the points on a split plane included).
+        for r2 in [bd2 * 1.5, 0.01, 0.05] {
+            let mut got = Vec::new();
+            tree.within(&q, r2, &mut got);
+            got.sort_by_key(|&(i, _)| i);
+            let want: Vec<(usize, f32)> = pts
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (i, (0..K).map(|d| (p[d] - q[d]).powi(2)).sum::<f32>()))
+                .filter(|&(_, d2)| d2 < r2)
+                .collect();
+            assert_eq!(got, want, "within √{r2}");
+        }
     }
 }
 
