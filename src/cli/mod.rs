@@ -191,6 +191,11 @@ pub struct InvertArgs {
     /// move further than noise; `stages::invert::train::EnvUpdate`); default: the preset's.
     #[arg(long, value_enum)]
     pub env_update: Option<EnvUpdate>,
+    /// λ of the base-colour prior (neighbours of one chromaticity in stage 1's colours drawn
+    /// to one base colour, so shadows are not painted: `stages::invert::prior`; not in the
+    /// paper); 0 turns it off; default: the preset's.
+    #[arg(long)]
+    pub base_color_prior: Option<f32>,
     /// Sub-pixel positions per training pixel whose primary records are traced once and
     /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
     /// memory in proportion (the report states it).
@@ -782,6 +787,14 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     }
     if let Some(u) = a.env_update {
         settings.env_update = u;
+    }
+    if let Some(l) = a.base_color_prior {
+        if !(l.is_finite() && l >= 0.0) {
+            return Err(Error::Usage(format!(
+                "--base-color-prior: expected a number ≥ 0, found {l}"
+            )));
+        }
+        settings.lambda_base_color = l;
     }
     if a.eval_spp == 0 || a.eval_stride == 0 {
         return Err(Error::Usage(

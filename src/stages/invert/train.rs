@@ -32,6 +32,7 @@
 //! 12,000 of 15,000), or fixed, or capped at twice the start (Table 4's `fixed8`, `max16`).
 
 use super::cache::{PrimaryCache, TrainState};
+use super::prior::BaseColorPrior;
 use crate::io::dataset::Observation;
 use crate::optim::{env_tv, logit, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
@@ -186,6 +187,10 @@ pub struct Settings {
     pub lr_decay: f32,
     /// λ_E of eq. training-objectives.
     pub lambda_tv: f32,
+    /// λ of the base-colour prior ([`super::prior`]; not in the paper): its largest pull on a
+    /// surfel in units of three pixels' image term. 0: off (old checkpoints and reports).
+    #[serde(default)]
+    pub lambda_base_color: f32,
     /// Initial material (activated values).
     pub init_base_color: f32,
     pub init_metallic: f32,
@@ -227,6 +232,7 @@ impl Settings {
             lr_roughness: 0.03,
             lr_decay: 0.1,
             lambda_tv: 0.01,
+            lambda_base_color: 0.0,
             init_base_color: 0.5,
             init_metallic: 0.02,
             init_roughness: 0.7,
@@ -304,6 +310,10 @@ impl MaterialParams {
 pub struct Losses {
     pub l1: f32,
     pub tv: f32,
+    /// The base-colour prior's value ([`super::prior`]; 0 when off or before the materials
+    /// train).
+    #[serde(default)]
+    pub prior: f32,
     pub total: f32,
     pub spp: u32,
 }
@@ -348,6 +358,10 @@ pub struct Inverter {
     /// resume: it is a function of the geometry, the views and the settings alone).
     #[serde(skip)]
     cache: Option<PrimaryCache>,
+    /// The base-colour prior's neighbour graph, built at the first step that needs it (a
+    /// function of the fixed geometry and stage-1 colours).
+    #[serde(skip)]
+    prior: Option<BaseColorPrior>,
 }
 
 /// Mixed into the settings' seed for the cache's sub-pixel positions.
@@ -595,6 +609,7 @@ impl Inverter {
             adam,
             iteration: 0,
             cache: None,
+            prior: None,
         }
     }
 
@@ -703,7 +718,26 @@ impl Inverter {
 
         // Adjoint: replay every sample under the second seed.
         let materials_on = it >= s.lighting_until;
-        let Adjoint { d_env, d_mat } = passes.adjoint(&pixels, &ybar, seed_grad, materials_on);
+        let Adjoint { d_env, mut d_mat } = passes.adjoint(&pixels, &ybar, seed_grad, materials_on);
+        // The base-colour prior at the surfels the pixels landed on (their primary records'
+        // hits at the first sub-pixel position), λ Ī / N per pixel (see the prior's module).
+        let mut prior = 0.0;
+        if materials_on && s.lambda_base_color > 0.0 {
+            let graph = self
+                .prior
+                .get_or_insert_with(|| BaseColorPrior::build(&refs));
+            let mean = pixels
+                .iter()
+                .map(|&p| obs.rgb[p as usize].iter().map(|&v| v as f64).sum::<f64>() / 3.0)
+                .sum::<f64>()
+                / pixels.len().max(1) as f64;
+            let touches: Vec<WeightedHit> = pixels
+                .iter()
+                .flat_map(|&p| cache.hits(cache.entry(image, p, 0)).iter().copied())
+                .collect();
+            let scale = s.lambda_base_color as f64 * mean / pixels.len().max(1) as f64;
+            prior = graph.add(&refs, &touches, scale, &mut d_mat) as f32;
+        }
         // Adam: the state's environment (with its TV term), then, once the schedule lets them
         // move, the materials.
         let tv = self.update_environment(k, &env, &d_env);
@@ -715,7 +749,8 @@ impl Inverter {
         Losses {
             l1,
             tv: tvv,
-            total: l1 + tvv,
+            prior,
+            total: l1 + tvv + prior,
             spp,
         }
     }
