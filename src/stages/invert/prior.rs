@@ -31,6 +31,14 @@
 //! Ī / (3 N a) per channel and pixel, the prior's at most λ Ī / (N a), so λ is the prior's
 //! largest pull in units of 3 pixels' data (λ = 0.1: a third of one pixel's), whatever the
 //! scene's brightness, image count or surfel count.
+//!
+//! **What it does and does not do** (measured, docs/benchmarks.md): with λ 0.3 (and
+//! `--env-update shared`) the ghost of `tests/separation.rs`'s plain floor goes (0.91 → 0.97-0.99
+//! of the open floor), but a checker of one chromaticity is flattened with it (dark / light 0.98
+//! for 0.57), and on the demo λ 0.1 changed neither Table 1 (26.11 against 26.19 dB) nor the
+//! ghost share (41 % against 39 %). Hence off by default: a prior that tells a moving shadow
+//! from a texture needs the states themselves (a shadow differs between them, a texture does
+//! not), which this one does not use.
 
 use crate::scene::{quat_axes, Surfels, SH_C0};
 use crate::spatial::KdTree;
