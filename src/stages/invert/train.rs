@@ -143,7 +143,7 @@ pub enum EnvUpdate {
     /// One second moment per state's map ([`crate::optim::Adam::step_shared`]): texels keep
     /// their gradients' relative sizes, each step limited to [`ENV_SHARED_MAX_STEP`] learning
     /// rates. On the same scene: both suns found within one texel (1.7°, 3.0°), carrying
-    /// 19-25 % of the irradiance; the ghost shadows were unchanged (see the test).
+    /// 18-23 % of the irradiance; the ghost shadows were unchanged (see the test).
     Shared,
 }
 
