@@ -117,12 +117,7 @@ impl<const K: usize> KdTree<K> {
         match self.nodes[node as usize] {
             Node::Leaf { start, end } => {
                 for j in start as usize..end as usize {
-                    let p = &self.points[j];
-                    let mut d2 = 0.0;
-                    for d in 0..K {
-                        let e = p[d] - q[d];
-                        d2 += e * e;
-                    }
+                    let d2 = dist2(&self.points[j], q);
                     if d2 < best.1 {
                         *best = (j, d2);
                     }
@@ -160,12 +155,7 @@ impl<const K: usize> KdTree<K> {
         match self.nodes[node as usize] {
             Node::Leaf { start, end } => {
                 for j in start as usize..end as usize {
-                    let p = &self.points[j];
-                    let mut d2 = 0.0;
-                    for d in 0..K {
-                        let e = p[d] - q[d];
-                        d2 += e * e;
-                    }
+                    let d2 = dist2(&self.points[j], q);
                     if d2 < max_d2 {
                         out.push((self.index[j] as usize, d2));
                     }
@@ -189,4 +179,15 @@ impl<const K: usize> KdTree<K> {
             }
         }
     }
+}
+
+/// Squared Euclidean distance, summed over the dimensions in order (the searches' one copy).
+#[inline]
+fn dist2<const K: usize>(p: &[f32; K], q: &[f32; K]) -> f32 {
+    let mut d2 = 0.0;
+    for d in 0..K {
+        let e = p[d] - q[d];
+        d2 += e * e;
+    }
+    d2
 }

@@ -34,6 +34,7 @@ use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings, 
 use lightfuse::trace::TraceScene;
 
 mod common;
+use common::inversion::{grey_start, train_states};
 use common::surfel_scenes::{camera, floor, mat, scene_of, sphere};
 
 const FLOOR: [f32; 3] = [0.6, 0.45, 0.3];
@@ -222,22 +223,8 @@ fn recovers_known_materials_and_environments() {
     let obs = captures(&t);
     // Start from grey materials on the true geometry.
     let mut scene = t.scene.clone();
-    for c in &mut scene.components {
-        for i in 0..c.surfels.len() {
-            c.surfels.base_color[i] = [0.5; 3];
-            c.surfels.metallic[i] = 0.02;
-            c.surfels.roughness[i] = 0.7;
-        }
-    }
-    let states: Vec<TrainState> = obs
-        .iter()
-        .enumerate()
-        .map(|(k, views)| TrainState {
-            views: views.iter().collect(),
-            transforms: scene.states[k].transforms.clone(),
-            eps: self_hit_epsilon(&scene, &scene.states[k]),
-        })
-        .collect();
+    grey_start(&mut scene, &Settings::fast());
+    let states = train_states(&scene, &obs);
     let init: Vec<Environment> = states
         .iter()
         .map(|s| initial_environment(&s.views, EW, EH))
@@ -504,5 +491,102 @@ fn the_adjoint_pass_scatters_what_tracing_the_continuations_again_does() {
             assert_eq!(lighting.d_env, d_env, "{case}: texels, lighting only");
             assert!(lighting.d_mat.is_empty());
         }
+    }
+}
+
+/// With the environment split into levels (`Settings::env_levels`), the checkpoint carries
+/// every level and its Adam state: a run stopped, written to JSON and read back continues bit
+/// for bit as the run that never stopped; a checkpoint whose coarse level is cut short, or
+/// whose settings' environment no longer halves that often, is refused naming the field, not
+/// a panic; so are settings whose environment does not halve `env_levels − 1` times.
+#[test]
+fn environment_levels_resume_bit_for_bit_and_bad_ones_are_refused() {
+    let t = truth();
+    let parts: Vec<&Surfels> = t.scene.components.iter().map(|c| &c.surfels).collect();
+    let mut trace = TraceScene::from_components(&parts);
+    let mut surfels: Vec<Surfels> = parts.iter().map(|s| (*s).clone()).collect();
+    let views = blank_views();
+    let states = one_view_per_state(&t, &views);
+    let init: Vec<Environment> = states
+        .iter()
+        .map(|s| initial_environment(&s.views, 16, 8))
+        .collect();
+    let settings = Settings {
+        iterations: 8,
+        pixels: 64,
+        lighting_until: 2,
+        base_color_until: 4,
+        env_width: 16,
+        env_height: 8,
+        env_levels: 3,
+        ..Settings::fast()
+    };
+    assert!(settings.check().is_ok());
+    let refs: Vec<&Surfels> = surfels.iter().collect();
+    let mut a = Inverter::new(settings.clone(), &refs, &init);
+    assert_eq!(a.env_coarse[0].len(), 2);
+    // The coarse levels start at zero: the map is the one-level run's.
+    let one = Inverter::new(
+        Settings {
+            env_levels: 1,
+            ..settings.clone()
+        },
+        &refs,
+        &init,
+    );
+    assert_eq!(a.environment(0, "e").pixels, one.environment(0, "e").pixels);
+    for _ in 0..4 {
+        a.step(&mut trace, &mut surfels, &states);
+    }
+    // The coarsest level took steps.
+    assert!(a.env_coarse[0][0].iter().any(|&v| v != 0.0));
+    let json = serde_json::to_string(&a).expect("serialises");
+    let mut b: Inverter = serde_json::from_str(&json).expect("reads back");
+    let file = std::path::Path::new("checkpoint.json");
+    b.check_environments(file).expect("a sound checkpoint");
+    let mut sb = surfels.clone();
+    let mut tb = TraceScene::from_components(&sb.iter().collect::<Vec<_>>());
+    while a.iteration < 8 {
+        a.step(&mut trace, &mut surfels, &states);
+        b.step(&mut tb, &mut sb, &states);
+    }
+    for k in 0..2 {
+        assert_eq!(a.environment(k, "e").pixels, b.environment(k, "e").pixels);
+        assert_eq!(a.env_coarse[k], b.env_coarse[k]);
+    }
+    assert_eq!(a.materials[1].base_color, b.materials[1].base_color);
+
+    let mut cut: Inverter = serde_json::from_str(&json).expect("reads back");
+    cut.env_coarse[1][1].pop();
+    let e = cut
+        .check_environments(file)
+        .expect_err("a level cut short")
+        .to_string();
+    assert!(
+        e.contains("checkpoint.json") && e.contains("inverter.env_coarse[1][1]"),
+        "{e}"
+    );
+    let mut fewer: Inverter = serde_json::from_str(&json).expect("reads back");
+    fewer.env_coarse[0].pop();
+    let e = fewer
+        .check_environments(file)
+        .expect_err("a level missing")
+        .to_string();
+    assert!(
+        e.contains("inverter.env_coarse[0]") && e.contains("expected 2 coarse levels"),
+        "{e}"
+    );
+    for levels in [0, 5] {
+        let e = Settings {
+            env_levels: levels,
+            ..settings.clone()
+        }
+        .check()
+        .expect_err("no such split")
+        .to_string();
+        assert!(
+            e.contains("--env-levels") && e.contains("16×8"),
+            "{levels}: {e}"
+        );
     }
 }

@@ -45,11 +45,11 @@ use lightfuse::io::dataset::Observation;
 use lightfuse::scene::{Camera, Environment, Rigid, Scene, Surfels};
 use lightfuse::shade::envmap::{uv_to_direction, EnvMap};
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
-use lightfuse::stages::invert::cache::TrainState;
 use lightfuse::stages::invert::train::{initial_environment, EnvUpdate, Inverter, Settings};
 use lightfuse::trace::TraceScene;
 
 mod common;
+use common::inversion::{grey_start, train_states};
 use common::surfel_scenes::{cuboid, floor, mat, scene_of};
 
 const FLOOR: [f32; 3] = [0.55, 0.5, 0.45];
@@ -368,29 +368,14 @@ fn invert(checker: bool, mut settings: Settings) -> Outcome {
     let t = truth(checker);
     let obs = captures(&t);
     let mut scene = t.scene.clone();
-    let states: Vec<TrainState> = obs
-        .iter()
-        .enumerate()
-        .map(|(k, views)| TrainState {
-            views: views.iter().collect(),
-            transforms: scene.states[k].transforms.clone(),
-            eps: self_hit_epsilon(&scene, &scene.states[k]),
-        })
-        .collect();
+    let states = train_states(&scene, &obs);
     let init: Vec<Environment> = states
         .iter()
         .map(|s| initial_environment(&s.views, EW, EH))
         .collect();
     settings.env_width = EW as u32;
     settings.env_height = EH as u32;
-    // Grey start, as stage 3 starts.
-    for c in &mut scene.components {
-        for i in 0..c.surfels.len() {
-            c.surfels.base_color[i] = [settings.init_base_color; 3];
-            c.surfels.metallic[i] = settings.init_metallic;
-            c.surfels.roughness[i] = settings.init_roughness;
-        }
-    }
+    grey_start(&mut scene, &settings);
     let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
     let refs: Vec<&Surfels> = surfels.iter().collect();
     let mut inv = Inverter::new(settings, &refs, &init);

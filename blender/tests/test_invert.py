@@ -57,7 +57,8 @@ def test_invert_without_stage2_warns_and_bad_input_is_a_clear_error(tiny_dataset
     assert p.returncode == 0, p.stderr
     assert "warning" in p.stderr and "stage 2 has not run" in p.stderr
 
-    for args, what in ((("--preset", "slow"), "--preset"), (("--spp-schedule", "fixed4"), "--spp-schedule")):
+    for args, what in ((("--preset", "slow"), "--preset"), (("--spp-schedule", "fixed4"), "--spp-schedule"),
+                       (("--env-levels", "9"), "--env-levels"), (("--env-levels", "0"), "--env-levels")):
         p = run("invert", ds, work, *args)
         assert p.returncode == 2 and what in p.stderr and "panicked" not in p.stderr, p.stderr
 

@@ -191,6 +191,11 @@ pub struct InvertArgs {
     /// move further than noise; `stages::invert::train::EnvUpdate`); default: the preset's.
     #[arg(long, value_enum)]
     pub env_update: Option<EnvUpdate>,
+    /// The environments as sums of maps at halving resolutions (5 on 256x128: from 16x8), so
+    /// directions few samples reach move with their neighbourhood rather than alone on noise
+    /// (`optim::pyramid`; not in the paper); 1: one value per texel; default: the preset's.
+    #[arg(long)]
+    pub env_levels: Option<u32>,
     /// λ of the base-colour prior (neighbours of one chromaticity in stage 1's colours drawn
     /// to one base colour, so shadows are not painted: `stages::invert::prior`; not in the
     /// paper); 0 turns it off; default: the preset's.
@@ -787,6 +792,9 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     }
     if let Some(u) = a.env_update {
         settings.env_update = u;
+    }
+    if let Some(l) = a.env_levels {
+        settings.env_levels = l;
     }
     if let Some(l) = a.base_color_prior {
         if !(l.is_finite() && l >= 0.0) {

@@ -19,6 +19,19 @@ use std::path::Path;
 /// Parameters per rayon task in [`Adam::step`].
 const CHUNK: usize = 1 << 14;
 
+/// One update's constants: β1, β2, 1 − β1, 1 − β2, ε, the learning rate, and the bias-corrected
+/// step size lr / (1 − β1^t) and 1 / √(1 − β2^t) at the update's step t.
+struct Coefficients {
+    b1: f32,
+    b2: f32,
+    c1: f32,
+    c2: f32,
+    eps: f32,
+    lr: f32,
+    step_size: f32,
+    inv_sqrt_bc2: f32,
+}
+
 /// Learning rate as a function of the group's step counter t (0 for the first update).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -187,46 +200,53 @@ impl Adam {
         self.groups[g].schedule = schedule;
     }
 
+    /// Group `g` checked against the lengths of an update's parameters and gradients, its step
+    /// counter advanced, and the update's coefficients at the new step (shared by [`Adam::step`]
+    /// and [`Adam::step_shared`]).
+    fn begin(&mut self, g: usize, params: usize, grads: usize) -> (&mut Group, Coefficients) {
+        let (b1, b2) = (self.beta1, self.beta2);
+        let eps = self.eps as f32;
+        let group = &mut self.groups[g];
+        assert_eq!(
+            params,
+            group.len(),
+            "group {}: {} parameters, the optimiser holds {}",
+            group.name,
+            params,
+            group.len()
+        );
+        assert_eq!(grads, params, "group {}: gradient length", group.name);
+        let lr = group.schedule.lr(group.step) as f64;
+        group.step += 1;
+        let t = group.step as i32;
+        let coefficients = Coefficients {
+            b1: b1 as f32,
+            b2: b2 as f32,
+            c1: (1.0 - b1) as f32,
+            c2: (1.0 - b2) as f32,
+            eps,
+            lr: lr as f32,
+            step_size: (lr / (1.0 - b1.powi(t))) as f32,
+            inv_sqrt_bc2: (1.0 / (1.0 - b2.powi(t)).sqrt()) as f32,
+        };
+        (group, coefficients)
+    }
+
     /// One Adam update of group `g` (PyTorch's formulation):
     /// m ← β1 m + (1 − β1) g, v ← β2 v + (1 − β2) g², t ← t + 1,
     /// p ← p − lr(t − 1) / (1 − β1^t) · m / (√v / √(1 − β2^t) + ε).
     pub fn step(&mut self, g: usize, params: &mut [f32], grads: &[f32]) {
-        let (b1, b2) = (self.beta1, self.beta2);
-        let (c1, c2) = ((1.0 - b1) as f32, (1.0 - b2) as f32);
-        let eps = self.eps as f32;
-        let group = &mut self.groups[g];
-        assert_eq!(
-            params.len(),
-            group.len(),
-            "group {}: {} parameters, the optimiser holds {}",
-            group.name,
-            params.len(),
-            group.len()
-        );
-        assert_eq!(
-            grads.len(),
-            params.len(),
-            "group {}: gradient length",
-            group.name
-        );
-        let lr = group.schedule.lr(group.step) as f64;
-        group.step += 1;
-        let t = group.step as i32;
-        let bc1 = 1.0 - b1.powi(t);
-        let bc2 = 1.0 - b2.powi(t);
-        let step_size = (lr / bc1) as f32;
-        let inv_sqrt_bc2 = (1.0 / bc2.sqrt()) as f32;
+        let (group, k) = self.begin(g, params.len(), grads.len());
         params
             .par_chunks_mut(CHUNK)
             .zip(grads.par_chunks(CHUNK))
             .zip(group.exp_avg.par_chunks_mut(CHUNK))
             .zip(group.exp_avg_sq.par_chunks_mut(CHUNK))
             .for_each(|(((p, gr), m), v)| {
-                let (b1, b2) = (b1 as f32, b2 as f32);
                 for (((p, &g), m), v) in p.iter_mut().zip(gr).zip(m).zip(v) {
-                    *m = b1 * *m + c1 * g;
-                    *v = b2 * *v + c2 * g * g;
-                    *p -= step_size * *m / (v.sqrt() * inv_sqrt_bc2 + eps);
+                    *m = k.b1 * *m + k.c1 * g;
+                    *v = k.b2 * *v + k.c2 * g * g;
+                    *p -= k.step_size * *m / (v.sqrt() * k.inv_sqrt_bc2 + k.eps);
                 }
             });
     }
@@ -240,35 +260,19 @@ impl Adam {
     /// step of a parameter that carries nearly all the gradient (√len times the learning rate
     /// unbounded).
     pub fn step_shared(&mut self, g: usize, params: &mut [f32], grads: &[f32], max_step: f32) {
-        let (b1, b2) = (self.beta1, self.beta2);
-        let (c1, c2) = ((1.0 - b1) as f32, (1.0 - b2) as f32);
-        let eps = self.eps as f32;
-        let group = &mut self.groups[g];
-        assert_eq!(
-            params.len(),
-            group.len(),
-            "group {}: parameters",
-            group.name
-        );
-        assert_eq!(grads.len(), params.len(), "group {}: gradients", group.name);
         let mean_sq = (grads.iter().map(|&g| g as f64 * g as f64).sum::<f64>()
             / grads.len().max(1) as f64) as f32;
-        let lr = group.schedule.lr(group.step) as f64;
-        group.step += 1;
-        let t = group.step as i32;
-        let step_size = (lr / (1.0 - b1.powi(t))) as f32;
-        let inv_sqrt_bc2 = (1.0 / (1.0 - b2.powi(t)).sqrt()) as f32;
-        let limit = max_step * lr as f32;
-        let (b1, b2) = (b1 as f32, b2 as f32);
+        let (group, k) = self.begin(g, params.len(), grads.len());
+        let limit = max_step * k.lr;
         for (((p, &g), m), v) in params
             .iter_mut()
             .zip(grads)
             .zip(&mut group.exp_avg)
             .zip(&mut group.exp_avg_sq)
         {
-            *m = b1 * *m + c1 * g;
-            *v = b2 * *v + c2 * mean_sq;
-            let d = step_size * *m / (v.sqrt() * inv_sqrt_bc2 + eps);
+            *m = k.b1 * *m + k.c1 * g;
+            *v = k.b2 * *v + k.c2 * mean_sq;
+            let d = k.step_size * *m / (v.sqrt() * k.inv_sqrt_bc2 + k.eps);
             *p -= d.clamp(-limit, limit);
         }
     }

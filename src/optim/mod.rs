@@ -12,6 +12,7 @@
 pub mod adam;
 pub mod geometry;
 pub mod loss;
+pub mod pyramid;
 pub mod ssim;
 
 pub use adam::{Adam, Group, Schedule};

@@ -2,6 +2,7 @@
 //! `mod common;` and uses its part.
 #![allow(dead_code)] // each test crate uses some of these
 
+pub mod inversion;
 pub mod surfel_scenes;
 
 use std::path::{Path, PathBuf};

@@ -18,16 +18,7 @@ pub fn sphere(c: Vec3, r: f32, n: usize, m: Material) -> Surfels {
         let phi = golden * i as f32;
         let nrm = Vec3::new(rad * phi.cos(), y, rad * phi.sin());
         let q = Quat::from_rotation_arc(Vec3::Z, nrm);
-        s.push(
-            (c + r * nrm).to_array(),
-            q.to_array(),
-            [spacing, spacing],
-            0.99,
-            &[[0.0; 3]],
-            m.base_color,
-            m.metallic,
-            m.roughness,
-        );
+        push_disc(&mut s, (c + r * nrm).to_array(), q, spacing, m);
     }
     s
 }
@@ -40,16 +31,7 @@ pub fn floor(y: f32, half: f32, spacing: f32, m: Material) -> Surfels {
     for i in 0..=k {
         for j in 0..=k {
             let p = [-half + i as f32 * spacing, y, -half + j as f32 * spacing];
-            s.push(
-                p,
-                q.to_array(),
-                [spacing, spacing],
-                0.99,
-                &[[0.0; 3]],
-                m.base_color,
-                m.metallic,
-                m.roughness,
-            );
+            push_disc(&mut s, p, q, spacing, m);
         }
     }
     s
@@ -134,18 +116,24 @@ pub fn cuboid(base: Vec3, size: Vec3, spacing: f32, m: Material) -> Surfels {
             for j in 0..=kb {
                 let u = -ea + 2.0 * ea * i as f32 / ka as f32;
                 let v = -eb + 2.0 * eb * j as f32 / kb as f32;
-                s.push(
-                    (centre + u * a + v * b).to_array(),
-                    q.to_array(),
-                    [spacing, spacing],
-                    0.99,
-                    &[[0.0; 3]],
-                    m.base_color,
-                    m.metallic,
-                    m.roughness,
-                );
+                push_disc(&mut s, (centre + u * a + v * b).to_array(), q, spacing, m);
             }
         }
     }
     s
+}
+
+/// One opaque (0.99) disc of `spacing` diameter at `p`, oriented by `q` (its local +Z the
+/// normal), with material `m` and no view-dependent colour: the fixtures' one surfel.
+fn push_disc(s: &mut Surfels, p: [f32; 3], q: Quat, spacing: f32, m: Material) {
+    s.push(
+        p,
+        q.to_array(),
+        [spacing, spacing],
+        0.99,
+        &[[0.0; 3]],
+        m.base_color,
+        m.metallic,
+        m.roughness,
+    );
 }

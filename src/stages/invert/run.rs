@@ -115,6 +115,7 @@ fn read_resumable(path: &Path, settings: &Settings, surfels: &[Surfels]) -> Resu
         ));
     }
     c.inverter.adam.validate(path)?;
+    c.inverter.check_environments(path)?;
     c.inverter.set_iterations(settings.iterations);
     Ok(c)
 }
@@ -148,6 +149,7 @@ fn scene_path(opts: &Options) -> Result<PathBuf> {
 /// Stage 3: inverse rendering of materials and per-state environments (eq. training-objectives).
 pub fn invert(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
+    opts.settings.check()?;
     let scene_file = scene_path(opts)?;
     let StageInputs {
         dataset,

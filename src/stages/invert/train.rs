@@ -34,7 +34,7 @@
 use super::cache::{PrimaryCache, TrainState};
 use super::prior::BaseColorPrior;
 use crate::io::dataset::Observation;
-use crate::optim::{env_tv, logit, sigmoid, Adam, Schedule};
+use crate::optim::{env_tv, logit, pyramid, sigmoid, Adam, Schedule};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Environment, Surfels};
 use crate::shade::envmap::{direction_to_uv, EnvMap};
@@ -177,6 +177,12 @@ pub struct Settings {
     pub env_update: EnvUpdate,
     pub env_width: u32,
     pub env_height: u32,
+    /// ln E as the sum of this many maps, each half the next one's resolution, the finest
+    /// `env_width × env_height` ([`crate::optim::pyramid`]; not in the paper): 1 is the
+    /// paper's one value per texel (old checkpoints and reports), 5 on 256×128 starts at 16×8.
+    /// Every level takes the same update rule, at `lr_env / √env_levels`.
+    #[serde(default = "one")]
+    pub env_levels: u32,
     /// Adam learning rates: on ln E, and on the logits of the materials.
     pub lr_env: f32,
     pub lr_base_color: f32,
@@ -210,7 +216,38 @@ fn no_decay() -> f32 {
     1.0
 }
 
+/// Adam's group for state k's coarse environment level of `size`.
+fn env_level_group(k: usize, size: (usize, usize)) -> String {
+    format!("env{k}/{}x{}", size.0, size.1)
+}
+
 impl Settings {
+    /// The environment's resolution (its finest level).
+    pub fn env_size(&self) -> (usize, usize) {
+        (self.env_width as usize, self.env_height as usize)
+    }
+
+    /// Settings no run can use, as the option that sets them would say it.
+    pub fn check(&self) -> crate::Result<()> {
+        let (w, h) = self.env_size();
+        if pyramid::coarse_sizes(w, h, self.env_levels).is_none() {
+            return Err(crate::Error::Usage(format!(
+                "--env-levels: expected 1 or more levels, each halving the {w}×{h} environment \
+                 to whole texels, found {}",
+                self.env_levels
+            )));
+        }
+        Ok(())
+    }
+
+    /// The environment's coarse levels, coarsest first (empty with one level). Panics if the
+    /// size does not halve `env_levels − 1` times: [`Settings::check`] says so first.
+    pub fn env_coarse_sizes(&self) -> Vec<(usize, usize)> {
+        let (w, h) = self.env_size();
+        pyramid::coarse_sizes(w, h, self.env_levels)
+            .expect("env_levels checked against the environment's size")
+    }
+
     /// The paper's schedule (§ Experimental setup): 15,000 iterations of 16,384 pixels from one
     /// image, lighting only to 2,000, + base colour to 9,000, 8 → 16 → 32 spp.
     pub fn paper() -> Settings {
@@ -226,6 +263,7 @@ impl Settings {
             env_update: EnvUpdate::Texel,
             env_width: 256,
             env_height: 128,
+            env_levels: 1,
             lr_env: 0.03,
             lr_base_color: 0.05,
             lr_metallic: 0.03,
@@ -349,8 +387,13 @@ fn image_term(
 pub struct Inverter {
     pub settings: Settings,
     pub materials: Vec<MaterialParams>,
-    /// Per training state: ln E, texel-major (row 0 = top), 3 per texel.
+    /// Per training state: ln E, texel-major (row 0 = top), 3 per texel; with
+    /// [`Settings::env_levels`] > 1, the finest level (what the coarse ones add to).
     pub envs: Vec<Vec<f32>>,
+    /// Per training state, the coarser levels of ln E, coarsest first
+    /// ([`crate::optim::pyramid::coarse_sizes`]), each starting at zero; empty with one level.
+    #[serde(default)]
+    pub env_coarse: Vec<Vec<Vec<f32>>>,
     pub adam: Adam,
     pub iteration: u32,
     rng: u64,
@@ -601,16 +644,82 @@ impl Inverter {
                     .collect()
             })
             .collect();
+        let env_coarse = (0..envs.len())
+            .map(|k| {
+                settings
+                    .env_coarse_sizes()
+                    .iter()
+                    .map(|&(w, h)| {
+                        adam.add_group(
+                            &env_level_group(k, (w, h)),
+                            3 * w * h,
+                            3,
+                            Schedule::Constant {
+                                lr: settings.lr_env,
+                            },
+                        );
+                        vec![0.0; 3 * w * h]
+                    })
+                    .collect()
+            })
+            .collect();
         Inverter {
             rng: settings.seed ^ 0x1f3e_5d7c_9b2a_4860,
             settings,
             materials,
             envs,
+            env_coarse,
             adam,
             iteration: 0,
             cache: None,
             prior: None,
         }
+    }
+
+    /// A checkpoint's environments against its settings and optimiser: an error naming `file`
+    /// and the field if any level has another size or no Adam group of that size.
+    pub fn check_environments(&self, file: &std::path::Path) -> crate::Result<()> {
+        let (w, h) = self.settings.env_size();
+        let sizes = self.settings.env_coarse_sizes();
+        let field = |f: String, want: usize, found: usize| {
+            crate::Error::invalid(
+                file,
+                f,
+                format!("expected {want} values for the settings' environment, found {found}"),
+            )
+        };
+        for (k, rho) in self.envs.iter().enumerate() {
+            if rho.len() != 3 * w * h {
+                return Err(field(format!("inverter.envs[{k}]"), 3 * w * h, rho.len()));
+            }
+            self.adam
+                .expect_group(file, &format!("env{k}"), 3 * w * h)?;
+            let levels = self.env_coarse.get(k).map(Vec::len).unwrap_or(0);
+            if levels != sizes.len() {
+                return Err(crate::Error::invalid(
+                    file,
+                    format!("inverter.env_coarse[{k}]"),
+                    format!(
+                        "expected {} coarse levels (env_levels {}), found {levels}",
+                        sizes.len(),
+                        self.settings.env_levels
+                    ),
+                ));
+            }
+            for (l, &(cw, ch)) in sizes.iter().enumerate() {
+                let found = self.env_coarse[k][l].len();
+                if found != 3 * cw * ch {
+                    return Err(field(
+                        format!("inverter.env_coarse[{k}][{l}]"),
+                        3 * cw * ch,
+                        found,
+                    ));
+                }
+                self.adam
+                    .expect_group(file, &env_level_group(k, (cw, ch)), 3 * cw * ch)?;
+            }
+        }
+        Ok(())
     }
 
     /// The primary-record cache, once the first step has traced it.
@@ -634,18 +743,20 @@ impl Inverter {
         }
     }
 
-    /// Training state k's environment E = exp ρ.
+    /// Training state k's environment E = exp ρ (ρ: the finest level plus every coarser one
+    /// upsampled to it).
     pub fn environment(&self, k: usize, name: &str) -> Environment {
-        let px = self.envs[k]
+        let fine = self.settings.env_size();
+        let mut rho = self.envs[k].clone();
+        let coarse = self.env_coarse.get(k).map(Vec::as_slice).unwrap_or(&[]);
+        for (level, &size) in coarse.iter().zip(&self.settings.env_coarse_sizes()) {
+            pyramid::upsample_add(level, size, &mut rho, fine);
+        }
+        let px = rho
             .chunks_exact(3)
             .map(|p| [p[0].exp(), p[1].exp(), p[2].exp()])
             .collect();
-        Environment::new(
-            name,
-            self.settings.env_width as usize,
-            self.settings.env_height as usize,
-            px,
-        )
+        Environment::new(name, fine.0, fine.1, px)
     }
 
     fn next(&mut self) -> u64 {
@@ -774,18 +885,29 @@ impl Inverter {
             .adam
             .group_index(&format!("env{k}"))
             .expect("one group per state");
-        self.adam.set_schedule(
-            g_env,
-            Schedule::Constant {
-                lr: s.lr_at(s.lr_env, 0, it),
-            },
-        );
-        match s.env_update {
-            EnvUpdate::Texel => self.adam.step(g_env, &mut self.envs[k], &d_rho),
-            EnvUpdate::Shared => {
-                self.adam
-                    .step_shared(g_env, &mut self.envs[k], &d_rho, ENV_SHARED_MAX_STEP)
-            }
+        // Each level moves about its learning rate per step and the levels add up. Measured on
+        // the demo with 8 levels (docs/benchmarks.md): the full rate on each drove the training
+        // loss from 0.30 up to 0.51 and the training views 5-9 dB down; lr / levels kept the
+        // fit but left most of the ghost shadows (34 % of uniform-albedo pixels); lr / √levels,
+        // the steps' sum if the levels' noise is independent, gave both (28 %, Table 1 27.3 dB).
+        let lr = s.lr_at(s.lr_env, 0, it) / (s.env_levels as f32).sqrt();
+        self.adam.set_schedule(g_env, Schedule::Constant { lr });
+        let rule = s.env_update;
+        let step = |adam: &mut Adam, g: usize, params: &mut [f32], grads: &[f32]| match rule {
+            EnvUpdate::Texel => adam.step(g, params, grads),
+            EnvUpdate::Shared => adam.step_shared(g, params, grads, ENV_SHARED_MAX_STEP),
+        };
+        step(&mut self.adam, g_env, &mut self.envs[k], &d_rho);
+        // The coarser levels: ρ's gradient gathered through each one's upsampling.
+        let fine = s.env_size();
+        for (l, size) in s.env_coarse_sizes().into_iter().enumerate() {
+            let g = self
+                .adam
+                .group_index(&env_level_group(k, size))
+                .expect("one group per state and level");
+            self.adam.set_schedule(g, Schedule::Constant { lr });
+            let d = pyramid::upsample_adjoint(&d_rho, fine, size);
+            step(&mut self.adam, g, &mut self.env_coarse[k][l], &d);
         }
         tv.value
     }
