@@ -10,7 +10,7 @@
 //! the finer levels add detail where the data carry it. Starting the coarse levels at zero
 //! leaves the initial map as it was.
 //!
-//! One function lists a fine texel's bilinear taps on a coarse level ([`taps`]); the upsampling
+//! One function lists a fine texel's bilinear taps on a coarse level (`taps`); the upsampling
 //! and its adjoint both walk it, so they cannot disagree (checked by the dot-product identity in
 //! this module's tests).
 
