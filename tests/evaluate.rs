@@ -162,3 +162,65 @@ fn rescaled_base_colour_matches_a_render_of_the_rescaled_scene() {
         }
     }
 }
+
+/// `eval::shadows::lit_share`: a sun (one bright texel 19.7° from the zenith, ~93 % of a
+/// horizontal point's light) over a dim uniform sky, and an opaque 1 × 1 square one unit above
+/// a point. The point keeps exactly the light from the directions that miss the square; a
+/// point far to the side keeps all of it.
+#[test]
+fn the_lit_share_of_a_point_under_a_square_is_the_light_it_still_sees() {
+    use lightfuse::eval::shadows::{lit_share, LIT, SAMPLES, SHADOWED};
+    let (w, h) = (64, 32);
+    let mut px = vec![[0.2f32; 3]; w * h];
+    px[2 * w + w / 2] = [4000.0; 3];
+    let env = Environment::new("sun", w, h, px);
+    let map = EnvMap::new(&env, 0.0);
+    let scene = scene_of(vec![floor(1.0, 0.5, 0.02, mat([0.5; 3], 0.0, 0.5))]);
+    let trace = TraceScene::new(&scene);
+    let placed = trace.place_state(&scene.states[0]);
+    let n = Vec3::Y;
+    // The exact share from the texels: a texel's light is blocked when its centre direction
+    // meets the square (|x / y| and |z / y| within 0.5 at y = 1).
+    let (mut all, mut kept) = (0.0f64, 0.0f64);
+    for y in 0..h {
+        for x in 0..w {
+            let d = lightfuse::shade::envmap::uv_to_direction([
+                (x as f32 + 0.5) / w as f32,
+                (y as f32 + 0.5) / h as f32,
+            ]);
+            let c = n.dot(d).max(0.0) as f64;
+            let l = env.pixels[y * w + x][0] as f64 * c * env.texel_solid_angle(y);
+            all += l;
+            if !(d.y > 0.0 && (d.x / d.y).abs() < 0.5 && (d.z / d.y).abs() < 0.5) {
+                kept += l;
+            }
+        }
+    }
+    let exact = (kept / all) as f32;
+    assert!(exact < 0.1, "the sun carries most of the light: {exact}");
+    // The estimate over seeds: its mean within 3 standard errors of the exact share (a share
+    // of SAMPLES draws, most of them the sun's: binomial, σ ≤ 0.5 / √SAMPLES per estimate).
+    let seeds = 32;
+    let est: Vec<f32> = (0..seeds)
+        .map(|s| lit_share(&placed, &map, Vec3::ZERO, n, 1e-4, s).unwrap())
+        .collect();
+    let mean = est.iter().sum::<f32>() / seeds as f32;
+    let tol = 3.0 * 0.5 / ((SAMPLES * seeds as usize) as f32).sqrt();
+    assert!((mean - exact).abs() < tol, "{mean} vs {exact} ± {tol}");
+    assert!(est.iter().all(|&s| s < SHADOWED), "{est:?}");
+    // Out from under the square: every direction above the surface reaches the sky.
+    let open = lit_share(&placed, &map, Vec3::new(5.0, 0.0, 0.0), n, 1e-4, 3).unwrap();
+    assert_eq!(open, 1.0);
+    assert!(open > LIT);
+    // A point facing away from every drawn direction has no light to share.
+    let dark = Environment::new("down", w, h, {
+        let mut p = vec![[0.0f32; 3]; w * h];
+        p[(h - 1) * w] = [1.0; 3]; // only the nadir's row
+        p
+    });
+    let down = EnvMap::new(&dark, 0.0);
+    assert_eq!(
+        lit_share(&placed, &down, Vec3::new(5.0, 0.0, 0.0), n, 1e-4, 3),
+        None
+    );
+}

@@ -9,6 +9,9 @@ import json
 import math
 import shutil
 
+import numpy as np
+from PIL import Image
+
 from bltest import ok, run, stages
 from browser import open_page
 
@@ -95,6 +98,20 @@ def check_report_in_browser(eval_dir):
     assert set(strips) <= set(srcs), (strips, srcs)
     assert any(s.startswith("environments/") and s.endswith("-recovered.png") for s in srcs), srcs
     assert any(s.startswith("environments/") and s.endswith("-truth.png") for s in srcs), srcs
+    # Each training state's irradiance spheres, and its figures against the truth in eval.json.
+    trained = [e["state"] for e in report["environments"]]
+    assert trained, report.keys()
+    for st in trained:
+        for kind in ("recovered-irradiance", "truth-irradiance"):
+            assert f"environments/{st}-{kind}.png" in srcs, srcs
+    for e in report["environments"]:
+        f = e["figures"]
+        assert 0.0 <= f["irradiance_error"] and f["irradiance_error_uniform"] > 0.0, e
+    assert "Irradiance error" in (eval_dir / "report.html").read_text()
+    ball = np.asarray(Image.open(eval_dir / f"environments/{trained[0]}-truth-irradiance.png"))
+    h, w, _ = ball.shape
+    assert w == 2 * h and (ball[0, 0] == 255).all(), ball.shape  # two discs, white outside
+    assert (ball[h // 2, [h // 2, w - h // 2]] < 255).any(axis=1).all(), "a sphere is blank"
     for m in ("base_color", "roughness", "metallic"):
         assert any(s.startswith("materials/") and s.endswith(f"-{m}.png") for s in srcs), srcs
     broken = [i for i in page.images if not i[1]]

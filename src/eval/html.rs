@@ -30,6 +30,10 @@ pub struct EnvironmentPair {
     pub state: String,
     pub recovered: Figure,
     pub truth: Option<Figure>,
+    /// Irradiance spheres: the recovered map's, then the truth's when there is one.
+    pub spheres: Vec<Figure>,
+    /// The recovered map against the truth, when there is one.
+    pub figures: Option<crate::eval::lighting::EnvFigures>,
 }
 
 /// One view's recovered material channels (and the dataset's albedo pass, when it has one).
@@ -91,9 +95,62 @@ pub fn read_curve(title: &str, path: &Path) -> Option<Curve> {
 }
 
 /// A lat-long environment for display: box-averaged to at most 512 texels wide, exposed by its
-/// own median luminance (so a recovered map, known only up to a global scale, shows its
-/// structure beside the truth), then Reinhard's x / (1 + x) and the sRGB curve.
+/// own median luminance ([`latlong_exposure`]; so a map known only up to a global scale shows
+/// its structure), then Reinhard's x / (1 + x) and the sRGB curve.
 pub fn tonemap_latlong(env: &Environment) -> image::RgbImage {
+    tonemap_latlong_exposed(env, latlong_exposure(env))
+}
+
+/// The exposure that puts a lat-long map's median luminance (over texels above zero, of the map
+/// box-averaged as [`tonemap_latlong`] shows it) at 0.5 before the tone curve.
+pub fn latlong_exposure(env: &Environment) -> f32 {
+    let (small, _, _) = shrink(env);
+    median_exposure(small.iter())
+}
+
+/// [`tonemap_latlong`] at a given exposure (a multiplier on the radiance): two maps shown at
+/// one exposure can be compared pixel for pixel.
+pub fn tonemap_latlong_exposed(env: &Environment, exposure: f32) -> image::RgbImage {
+    let (small, w, h) = shrink(env);
+    let mut out = image::RgbImage::new(w as u32, h as u32);
+    for (i, p) in small.iter().enumerate() {
+        out.put_pixel((i % w) as u32, (i / w) as u32, tone(p, exposure));
+    }
+    out
+}
+
+/// Values on a sphere image ([`crate::eval::lighting::irradiance_sphere`]), `width` wide, at a
+/// given exposure with the tone curve of [`tonemap_latlong`]; pixels off the spheres white.
+pub fn tonemap_sphere(px: &[Option<[f32; 3]>], width: usize, exposure: f32) -> image::RgbImage {
+    let mut out = image::RgbImage::new(width as u32, (px.len() / width) as u32);
+    for (i, p) in px.iter().enumerate() {
+        let c = p.map_or(image::Rgb([255; 3]), |p| tone(&p, exposure));
+        out.put_pixel((i % width) as u32, (i / width) as u32, c);
+    }
+    out
+}
+
+/// 0.5 / the median luminance of the values above zero (1 when there are none).
+pub fn median_exposure<'a>(rgb: impl Iterator<Item = &'a [f32; 3]>) -> f32 {
+    let lum = |p: &[f32; 3]| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
+    let mut l: Vec<f32> = rgb.map(lum).filter(|v| *v > 0.0).collect();
+    if l.is_empty() {
+        return 1.0;
+    }
+    let mid = l.len() / 2;
+    0.5 / l.select_nth_unstable_by(mid, f32::total_cmp).1.max(1e-12)
+}
+
+/// Reinhard's x / (1 + x) of exposure · p, then the sRGB curve, as bytes.
+fn tone(p: &[f32; 3], exposure: f32) -> image::Rgb<u8> {
+    image::Rgb(p.map(|v| {
+        let x = (v * exposure).max(0.0);
+        byte(crate::scene::color::srgb_encode(x / (1.0 + x)))
+    }))
+}
+
+/// A lat-long map box-averaged by an integer factor to at most 512 texels wide.
+fn shrink(env: &Environment) -> (Vec<[f32; 3]>, usize, usize) {
     let f = env.width.div_ceil(512).max(1);
     let (w, h) = ((env.width / f).max(1), (env.height / f).max(1));
     let mut small = vec![[0.0f32; 3]; w * h];
@@ -111,24 +168,7 @@ pub fn tonemap_latlong(env: &Environment) -> image::RgbImage {
         }
         *p = p.map(|v| v / n);
     }
-    let lum = |p: &[f32; 3]| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
-    let mut l: Vec<f32> = small.iter().map(lum).filter(|v| *v > 0.0).collect();
-    let median = if l.is_empty() {
-        1.0
-    } else {
-        let mid = l.len() / 2;
-        *l.select_nth_unstable_by(mid, f32::total_cmp).1
-    };
-    let exposure = 0.5 / median.max(1e-12);
-    let mut out = image::RgbImage::new(w as u32, h as u32);
-    for (i, p) in small.iter().enumerate() {
-        let px = p.map(|v| {
-            let x = (v * exposure).max(0.0);
-            byte(crate::scene::color::srgb_encode(x / (1.0 + x)))
-        });
-        out.put_pixel((i % w) as u32, (i / w) as u32, image::Rgb(px));
-    }
-    out
+    (small, w, h)
 }
 
 /// An sRGB image of linear RGB values in [0, 1] (clamped).
@@ -342,8 +382,15 @@ pub fn page(r: &Report, a: &Assets) -> String {
             100.0 * u.ghost_share,
             u.pixels,
             100.0 * u.spread
-        ))
+        )),
     );
+    if let Some(g) = &r.shadow_ghosts {
+        let _ = writeln!(
+            s,
+            "<p>{}</p>",
+            esc(&crate::eval::tables::shadow_ghosts_sentence(g))
+        );
+    }
     table(
         &mut s,
         "Novel-state relighting (Table 1): the test arrangement under environments no training \
@@ -419,15 +466,39 @@ pub fn page(r: &Report, a: &Assets) -> String {
     if !a.environments.is_empty() {
         s.push_str(
             "<h2>Recovered environments</h2>\n<p>Each training state's environment as stage 3 \
-             recovered it, beside the one that lit the captures; lat-long, each map exposed by \
-             its own median luminance (a recovered map is known up to a global scale), \
-             Reinhard-tone-mapped, sRGB.</p>\n",
+             recovered it, beside the one that lit the captures, at one exposure: the recovered \
+             map (known up to a global scale, traded with the base colour) is brought to the \
+             truth's luminous power, then both are exposed by the truth's median luminance, \
+             Reinhard-tone-mapped, sRGB; lat-long, the map's centre is +X, up is +Y. Below each \
+             pair, a white matte sphere lit by each map (seen from +X and from −X; the same gain, \
+             both exposed by the truth sphere's median): the light a diffuse surface receives, \
+             which is what relighting needs of the map. Without the truth, the recovered map at \
+             its own exposure.</p>\n",
         );
         for e in &a.environments {
             let _ = write!(s, "<div class=\"env\"><h3>{}</h3>", esc(&e.state));
+            if let Some(f) = &e.figures {
+                let _ = write!(
+                    s,
+                    "<p>Irradiance error {:.1} % (a uniform map: {:.1} %); log error above the \
+                     horizon {:.2} (uniform: {:.2}), whole sphere {:.2} (uniform: {:.2}); \
+                     luminous power {:+.0} %.</p>",
+                    100.0 * f.irradiance_error,
+                    100.0 * f.irradiance_error_uniform,
+                    f.log_rmse_upper,
+                    f.log_rmse_upper_uniform,
+                    f.log_rmse,
+                    f.log_rmse_uniform,
+                    100.0 * f.power_error
+                );
+            }
             figure(&mut s, &e.recovered);
             if let Some(t) = &e.truth {
                 figure(&mut s, t);
+            }
+            s.push_str("<br>");
+            for f in &e.spheres {
+                figure(&mut s, f);
             }
             s.push_str("</div>\n");
         }

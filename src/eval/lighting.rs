@@ -58,43 +58,84 @@ pub struct EnvFigures {
 const IRRADIANCE_MAP: (usize, usize) = (64, 32);
 const IRRADIANCE_NORMALS: (usize, usize) = (32, 16);
 
-/// Irradiance E(n) per channel at the texel centres of a `IRRADIANCE_NORMALS` grid, from the
-/// map area-averaged to `IRRADIANCE_MAP`; with each normal's solid angle.
-fn irradiance(env: &Environment) -> Vec<([f64; 3], f64)> {
+/// The map area-averaged to `IRRADIANCE_MAP`, as one light per texel: its direction and
+/// Ω·L, so that E(n) = ∫ L(ω) max(0, n·ω) dω ≈ Σ Ω·L max(0, n·ω) ([`irradiance_at`]).
+fn irradiance_lights(env: &Environment) -> Vec<([f64; 3], [f64; 3])> {
     let (mw, mh) = IRRADIANCE_MAP;
     let map = env.resample(mw, mh);
-    let texel_dir = |x: usize, y: usize, w: usize, h: usize| {
-        let d = crate::shade::envmap::uv_to_direction([
-            (x as f32 + 0.5) / w as f32,
-            (y as f32 + 0.5) / h as f32,
-        ]);
-        [d.x as f64, d.y as f64, d.z as f64]
-    };
-    let lights: Vec<([f64; 3], [f64; 3])> = (0..mh)
+    (0..mh)
         .flat_map(|y| (0..mw).map(move |x| (x, y)))
         .map(|(x, y)| {
             let o = map.texel_solid_angle(y);
             let l = map.pixels[y * mw + x];
             (texel_dir(x, y, mw, mh), [0, 1, 2].map(|c| l[c] as f64 * o))
         })
-        .collect();
+        .collect()
+}
+
+/// The direction of texel (x, y)'s centre in a `w` × `h` lat-long map.
+fn texel_dir(x: usize, y: usize, w: usize, h: usize) -> [f64; 3] {
+    let d = crate::shade::envmap::uv_to_direction([
+        (x as f32 + 0.5) / w as f32,
+        (y as f32 + 0.5) / h as f32,
+    ]);
+    [d.x as f64, d.y as f64, d.z as f64]
+}
+
+/// E(n) per channel from [`irradiance_lights`].
+fn irradiance_at(lights: &[([f64; 3], [f64; 3])], n: [f64; 3]) -> [f64; 3] {
+    let mut e = [0.0f64; 3];
+    for (d, l) in lights {
+        let c = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+        if c > 0.0 {
+            for k in 0..3 {
+                e[k] += l[k] * c;
+            }
+        }
+    }
+    e
+}
+
+/// Irradiance E(n) per channel at the texel centres of a `IRRADIANCE_NORMALS` grid, from the
+/// map area-averaged to `IRRADIANCE_MAP`; with each normal's solid angle.
+fn irradiance(env: &Environment) -> Vec<([f64; 3], f64)> {
+    let lights = irradiance_lights(env);
     let (nw, nh) = IRRADIANCE_NORMALS;
     (0..nh)
         .flat_map(|y| (0..nw).map(move |x| (x, y)))
         .map(|(x, y)| {
-            let n = texel_dir(x, y, nw, nh);
-            let mut e = [0.0f64; 3];
-            for (d, l) in &lights {
-                let c = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
-                if c > 0.0 {
-                    for k in 0..3 {
-                        e[k] += l[k] * c;
-                    }
-                }
-            }
+            let e = irradiance_at(&lights, texel_dir(x, y, nw, nh));
             (e, crate::scene::environment::texel_solid_angle(nw, nh, y))
         })
         .collect()
+}
+
+/// A white Lambertian sphere lit by `env`, as two orthographic views side by side (a
+/// `2·size` × `size` image, row-major, top row first): from +X, the direction at the centre of
+/// the lat-long map, then from −X; +Y (the zenith) up in both. Each pixel on a sphere holds its
+/// radiance E(n) / π (the same irradiance as [`EnvFigures::irradiance_error`] judges); pixels
+/// off the spheres are `None`. What a matte object placed in the scene would look like under the
+/// map, which is the part of the lighting a diffuse surface can tell apart.
+pub fn irradiance_sphere(env: &Environment, size: usize) -> Vec<Option<[f32; 3]>> {
+    let lights = irradiance_lights(env);
+    let mut out = vec![None; 2 * size * size];
+    for (i, px) in out.iter_mut().enumerate() {
+        let (x, y) = (i % (2 * size), i / (2 * size));
+        let view = x / size;
+        // Disc coordinates: a to the right, b up, both in [-1, 1].
+        let a = 2.0 * ((x % size) as f64 + 0.5) / size as f64 - 1.0;
+        let b = 1.0 - 2.0 * (y as f64 + 0.5) / size as f64;
+        let r2 = a * a + b * b;
+        if r2 > 1.0 {
+            continue;
+        }
+        let c = (1.0 - r2).sqrt();
+        // Seen from +X the camera's right is −Z; seen from −X it is +Z.
+        let n = if view == 0 { [c, b, -a] } else { [-c, b, a] };
+        let e = irradiance_at(&lights, n);
+        *px = Some(e.map(|v| (v / std::f64::consts::PI) as f32));
+    }
+    out
 }
 
 /// Σ_n Ω_n Σ_c |g·a − b| / Σ_n Ω_n Σ_c b with g the least-squares gain of a onto b.
@@ -307,27 +348,46 @@ pub const GHOST_TOLERANCE: f64 = 0.15;
 /// deviation. Pixels with a true luminance below 1e-3 are left out (no ratio). `None` when no
 /// surface qualifies.
 pub fn albedo_uniformity(pairs: &[([f32; 3], [f32; 3])]) -> Option<UniformityFigures> {
+    albedo_uniformity_over(pairs, |_| true)
+}
+
+/// [`albedo_uniformity`] counted over the pairs `keep` selects (by index into `pairs`), with
+/// the same surfaces and each surface's median ratio from all its pairs: how far one part of a
+/// surface strays from what the whole surface says (e.g. where a training state's shadow fell,
+/// [`crate::eval::shadows`]). A surface counts when it qualifies by all its pairs and has a
+/// kept one; `None` when no kept pair is on a surface that qualifies.
+pub fn albedo_uniformity_over(
+    pairs: &[([f32; 3], [f32; 3])],
+    keep: impl Fn(usize) -> bool,
+) -> Option<UniformityFigures> {
     let luma = |c: [f32; 3]| (0..3).map(|k| LUMINANCE[k] * c[k] as f64).sum::<f64>();
-    let mut groups: std::collections::BTreeMap<[u32; 3], Vec<f64>> = Default::default();
-    for (p, t) in pairs {
+    let mut groups: std::collections::BTreeMap<[u32; 3], Vec<(f64, bool)>> = Default::default();
+    for (i, (p, t)) in pairs.iter().enumerate() {
         let lt = luma(*t);
         if lt < 1e-3 {
             continue;
         }
         let key = t.map(|v| (v.clamp(0.0, 1.0) * 4096.0).round() as u32);
-        groups.entry(key).or_default().push(luma(*p) / lt);
+        groups
+            .entry(key)
+            .or_default()
+            .push((luma(*p) / lt, keep(i)));
     }
     let (mut surfaces, mut pixels, mut ghosts, mut deviation) = (0, 0, 0, 0.0f64);
-    for ratios in groups.values_mut() {
-        if ratios.len() < UNIFORM_MIN_PIXELS {
+    for members in groups.values() {
+        if members.len() < UNIFORM_MIN_PIXELS || !members.iter().any(|m| m.1) {
             continue;
         }
-        let m = crate::stats::median(ratios).expect("a surface has pixels");
+        let mut ratios: Vec<f64> = members.iter().map(|m| m.0).collect();
+        let m = crate::stats::median(&mut ratios).expect("a surface has pixels");
         if m <= 0.0 {
             continue;
         }
         surfaces += 1;
-        for r in ratios.iter() {
+        for &(r, kept) in members {
+            if !kept {
+                continue;
+            }
             let d = (r / m - 1.0).abs();
             pixels += 1;
             deviation += d;
@@ -514,6 +574,42 @@ mod tests {
             px[y * w + x] = [20_000.0, 19_000.0, 17_000.0];
         }
         Environment::new("sky", w, h, px)
+    }
+
+    #[test]
+    fn the_irradiance_sphere_of_a_uniform_sky_and_of_a_sun() {
+        // L = 1 everywhere: E(n) = π for every n, so every sphere pixel is 1 (the 64 × 32
+        // midpoint quadrature of the clamped cosine is good to ~1e-3).
+        let size = 16;
+        let white = Environment::new("white", 64, 32, vec![[1.0; 3]; 64 * 32]);
+        let px = irradiance_sphere(&white, size);
+        assert_eq!(px.len(), 2 * size * size);
+        let on: Vec<[f32; 3]> = px.iter().flatten().copied().collect();
+        // Two discs of radius size / 2: π size² / 2 pixels, ± the rims'.
+        let expect = std::f64::consts::PI * (size * size) as f64 / 2.0;
+        assert!(
+            (on.len() as f64 - expect).abs() < 0.1 * expect,
+            "{}",
+            on.len()
+        );
+        for p in &on {
+            assert!(p.iter().all(|v| (v - 1.0).abs() < 5e-3), "{p:?}");
+        }
+        assert!(px[0].is_none() && px[2 * size - 1].is_none());
+        // A sun in the map's centre (+X, on the horizon): the first view's centre faces it,
+        // the second's faces away and gets only the sky.
+        let (w, h) = (256, 128);
+        let sunny = sky(w, h, Some((w / 2, h / 2)));
+        let s = irradiance_sphere(&sunny, size);
+        let centre = |view: usize| s[(size / 2) * 2 * size + view * size + size / 2].unwrap()[0];
+        let sky_only = irradiance_sphere(&sky(w, h, None), size);
+        let sky_centre = sky_only[(size / 2) * 2 * size + size + size / 2].unwrap()[0];
+        assert!(centre(0) > 3.0 * centre(1), "{} {}", centre(0), centre(1));
+        assert!((centre(1) - sky_centre).abs() < 1e-3 * sky_centre);
+        // The sky is brighter at the zenith: a sphere's top is brighter than its bottom.
+        let top = sky_only[2 * size + size / 2].unwrap()[2];
+        let bottom = sky_only[(size - 2) * 2 * size + size / 2].unwrap()[2];
+        assert!(top > bottom, "{top} {bottom}");
     }
 
     #[test]

@@ -9,6 +9,7 @@ pub mod metrics;
 pub mod pose;
 pub mod relight;
 pub mod report;
+pub mod shadows;
 pub mod stage1;
 pub mod stage3;
 pub mod tables;

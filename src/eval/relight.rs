@@ -39,15 +39,17 @@
 
 use crate::error::{Error, Result};
 use crate::eval::html;
-use crate::eval::lighting::compare_albedo;
+use crate::eval::lighting::{
+    compare_albedo, compare_environments, irradiance_sphere, luminous_power,
+};
 use crate::eval::report::comparison_strip;
 use crate::eval::tables::{
-    markdown, mean_rows, Metrics, Report, RowFigures, RunFigures, Selection, ViewFigures, DENOISER,
-    FORMAT,
+    markdown, mean_rows, Metrics, Report, RowFigures, RunFigures, Selection, StateEnvironment,
+    ViewFigures, DENOISER, FORMAT,
 };
 use crate::io::dataset::{Dataset, Frame};
 use crate::io::work::{read_stage_scene, WorkDir};
-use crate::scene::{Layout, Scene, State};
+use crate::scene::{Environment, Layout, Scene, State};
 use crate::shade::denoise::denoise_render;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
 use crate::shade::render::{environment_image, Aovs, Primaries};
@@ -279,7 +281,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
     let input = Inputs::load(opts, &d)?;
     let filter = PixelFilter::new(crate::shade::estimator::DEFAULT_FILTER_WIDTH);
     let trace = TraceScene::new(&input.relit);
-    let albedo = albedo_ratio(&input, &trace, &filter, opts.seed)?;
+    let (albedo, shadow_ghosts) = albedo_ratio(&input, &trace, &filter, opts.seed)?;
     let ratio = albedo
         .ratio
         .map(|r| if r.is_finite() { r as f32 } else { 1.0 });
@@ -366,9 +368,19 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         }
     }
     bar.finish();
+    let envs = recovered_environments(d, &input.relit)?;
+    let environments: Vec<StateEnvironment> = envs
+        .iter()
+        .filter_map(|(state, rec, truth)| {
+            truth.as_ref().map(|t| StateEnvironment {
+                state: state.clone(),
+                figures: compare_environments(rec, t),
+            })
+        })
+        .collect();
     if opts.images {
         pictures.assets.environments =
-            environment_pairs(d, &input.relit, &out_dir, &mut pictures.strips)?;
+            environment_pairs(&envs, &environments, &out_dir, &mut pictures.strips);
     }
     let report = Report {
         format: FORMAT.into(),
@@ -382,6 +394,8 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         albedo_ratio: albedo.ratio,
         albedo_pixels: albedo.pixels,
         albedo_uniformity: albedo.uniformity.clone(),
+        shadow_ghosts,
+        environments,
         relighting: BTreeMap::new(),
         synthesis: BTreeMap::new(),
         runs: figures,
@@ -397,34 +411,95 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
 }
 
 /// The per-channel median albedo ratio (true / recovered base colour), from the pixel-centre
-/// records of every test view that has an albedo pass ([`compare_albedo`]).
+/// records of every test view that has an albedo pass ([`compare_albedo`]); and the same pairs'
+/// ghost figures taken apart by where the training states' shadows fell
+/// ([`crate::eval::shadows`]), when the dataset has the training states' environments and the
+/// views' masks.
 fn albedo_ratio(
     input: &Inputs,
     trace: &TraceScene,
     filter: &PixelFilter,
     seed: u32,
-) -> Result<crate::eval::lighting::AlbedoFigures> {
+) -> Result<(
+    crate::eval::lighting::AlbedoFigures,
+    Option<crate::eval::shadows::ShadowGhosts>,
+)> {
+    use crate::eval::shadows::{lit_share, shadow_ghosts, Shares};
+    use rayon::prelude::*;
+    // Each training state as stage 3 saw it (the relightable scene placed by its poses) and
+    // the environment that truly lit it.
+    let mut lights = Vec::new();
+    for (k, st) in input.d.states.iter().enumerate() {
+        if st.split != "train" {
+            continue;
+        }
+        let (Some(i), Some(env)) = (input.relit.state_index(&st.name), input.d.environment(k)?)
+        else {
+            continue;
+        };
+        let state = &input.relit.states[i];
+        lights.push((
+            st.name.clone(),
+            trace.place_state(state),
+            EnvMap::new(&env, 0.0),
+            self_hit_epsilon(&input.relit, state),
+        ));
+    }
     let mut pairs = Vec::new();
+    let mut shares: Vec<Option<Shares>> = Vec::new();
+    let mut masks_everywhere = true;
     for (si, &k) in input.test_states.iter().enumerate() {
         let placed = trace.place_state(&input.relit_states[si]);
         let Some(run) = input.runs.iter().find(|r| r.state == k) else {
             continue;
         };
-        for f in run.frames {
+        for (v, f) in run.frames.iter().enumerate() {
             let Some(rel) = &f.albedo_file_path else {
                 continue;
             };
             let truth = input.d.frame_rgb(rel, &f.camera)?;
+            let mask = input.d.frame_mask(f)?;
+            masks_everywhere &= mask.is_some();
             let p = Primaries::trace(&placed, filter, &f.camera, 1, seed);
             let aovs = p.aovs();
-            for ((&z, &a), &t) in aovs.depth.iter().zip(&aovs.albedo).zip(&truth) {
-                if z > 0.0 && t.iter().any(|&v| v > 0.0) {
-                    pairs.push((a, t));
-                }
+            let w = f.camera.w as usize;
+            let kept: Vec<usize> = (0..truth.len())
+                .filter(|&i| aovs.depth[i] > 0.0 && truth[i].iter().any(|&t| t > 0.0))
+                .collect();
+            let view_shares: Vec<Option<Shares>> = kept
+                .par_iter()
+                .map(|&i| {
+                    if lights.is_empty() || mask.as_ref().is_none_or(|m| m[i] != 0) {
+                        return None;
+                    }
+                    let (o, d) = f
+                        .camera
+                        .planar_ray((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
+                    let x = glam::Vec3::from(o) + aovs.depth[i] * glam::Vec3::from(d);
+                    let n = glam::Vec3::from(aovs.normal[i]);
+                    // One generator stream per (view, pixel, state): fixed, and independent.
+                    let id = ((k * 4096 + v) * truth.len() + i) as u64;
+                    Some(
+                        lights
+                            .iter()
+                            .enumerate()
+                            .map(|(j, (_, pl, env, eps))| {
+                                lit_share(pl, env, x, n, *eps, id * 8 + j as u64)
+                            })
+                            .collect(),
+                    )
+                })
+                .collect();
+            for (&i, s) in kept.iter().zip(view_shares) {
+                pairs.push((aovs.albedo[i], truth[i]));
+                shares.push(s);
             }
         }
     }
-    Ok(compare_albedo(&pairs))
+    let names: Vec<String> = lights.iter().map(|l| l.0.clone()).collect();
+    let ghosts = (!lights.is_empty() && masks_everywhere && !pairs.is_empty())
+        .then(|| shadow_ghosts(&pairs, &shares, &names));
+    Ok((compare_albedo(&pairs), ghosts))
 }
 
 /// A test state's arrangement, ready to render: the relightable scene placed for tracing (with
@@ -668,14 +743,14 @@ fn material_view(
     })
 }
 
-/// The report's environment images: each training state's recovered map beside the dataset's.
-fn environment_pairs(
+/// Each training state's recovered environment with the dataset's (None when the dataset has
+/// no file of it), in the dataset's order. The dataset's files are stored as Cycles used them
+/// (rotation applied), the world frame the recovered maps are in.
+fn recovered_environments<'a>(
     d: &Dataset,
-    relit: &Scene,
-    out_dir: &Path,
-    pngs: &mut Vec<(PathBuf, image::RgbImage)>,
-) -> Result<Vec<html::EnvironmentPair>> {
-    let mut pairs = Vec::new();
+    relit: &'a Scene,
+) -> Result<Vec<(String, &'a Environment, Option<Environment>)>> {
+    let mut out = Vec::new();
     for (k, st) in d.states.iter().enumerate() {
         if st.split != "train" {
             continue;
@@ -687,28 +762,101 @@ fn environment_pairs(
         else {
             continue;
         };
-        let rel = format!("environments/{}-recovered.png", st.name);
-        pngs.push((out_dir.join(&rel), html::tonemap_latlong(env)));
-        let recovered = html::Figure {
-            file: rel,
-            caption: format!("recovered ({}×{})", env.width, env.height),
+        out.push((st.name.clone(), env, d.environment(k)?));
+    }
+    Ok(out)
+}
+
+/// Side of each irradiance sphere in the report, pixels.
+const SPHERE_SIZE: usize = 96;
+
+/// The report's lighting images, per training state: the recovered map beside the dataset's at
+/// one exposure, and the two maps' irradiance spheres ([`irradiance_sphere`]) at one exposure.
+/// The recovered map is known up to a global scale (traded with the base colour), so it is
+/// first brought to the truth's luminous power; the exposure is then the truth's own
+/// ([`html::latlong_exposure`], [`html::median_exposure`]). Without a truth, the recovered map
+/// alone at its own exposure.
+fn environment_pairs(
+    envs: &[(String, &Environment, Option<Environment>)],
+    figures: &[StateEnvironment],
+    out_dir: &Path,
+    pngs: &mut Vec<(PathBuf, image::RgbImage)>,
+) -> Vec<html::EnvironmentPair> {
+    let mut pairs = Vec::new();
+    for (state, rec, truth) in envs {
+        let mut png = |name: &str, img: image::RgbImage| {
+            let rel = format!("environments/{state}-{name}.png");
+            pngs.push((out_dir.join(&rel), img));
+            rel
         };
-        let truth = match d.environment(k)? {
+        let rec_sphere = irradiance_sphere(rec, SPHERE_SIZE);
+        let (rec_map, rec_ball, truth_figs, spheres);
+        match truth {
             Some(t) => {
-                let rel = format!("environments/{}-truth.png", st.name);
-                pngs.push((out_dir.join(&rel), html::tonemap_latlong(&t)));
-                Some(html::Figure {
-                    file: rel,
-                    caption: format!("truth ({}×{})", t.width, t.height),
-                })
+                let p_rec = luminous_power(rec);
+                let gain = if p_rec > 0.0 {
+                    (luminous_power(t) / p_rec) as f32
+                } else {
+                    1.0
+                };
+                let (e_map, t_sphere) =
+                    (html::latlong_exposure(t), irradiance_sphere(t, SPHERE_SIZE));
+                let e_ball = html::median_exposure(t_sphere.iter().flatten());
+                rec_map = html::tonemap_latlong_exposed(rec, gain * e_map);
+                rec_ball = html::tonemap_sphere(&rec_sphere, 2 * SPHERE_SIZE, gain * e_ball);
+                let truth_map = png("truth", html::tonemap_latlong_exposed(t, e_map));
+                let truth_ball = png(
+                    "truth-irradiance",
+                    html::tonemap_sphere(&t_sphere, 2 * SPHERE_SIZE, e_ball),
+                );
+                truth_figs = Some((truth_map, truth_ball, t.width, t.height, gain));
             }
-            None => None,
+            None => {
+                rec_map = html::tonemap_latlong(rec);
+                rec_ball = html::tonemap_sphere(
+                    &rec_sphere,
+                    2 * SPHERE_SIZE,
+                    html::median_exposure(rec_sphere.iter().flatten()),
+                );
+                truth_figs = None;
+            }
+        }
+        let (rec_map, rec_ball) = (
+            png("recovered", rec_map),
+            png("recovered-irradiance", rec_ball),
+        );
+        let scaled = truth_figs.as_ref().map_or(String::new(), |f| {
+            format!(", ×{:.3} to the truth's power", f.4)
+        });
+        let recovered = html::Figure {
+            file: rec_map,
+            caption: format!("recovered ({}×{}{scaled})", rec.width, rec.height),
         };
+        let mut sphere_figs = vec![html::Figure {
+            file: rec_ball,
+            caption: format!("recovered: a white matte sphere from +X and −X{scaled}"),
+        }];
+        let truth = truth_figs.map(|(map, ball, w, h, _)| {
+            sphere_figs.push(html::Figure {
+                file: ball,
+                caption: "truth: the same sphere".into(),
+            });
+            html::Figure {
+                file: map,
+                caption: format!("truth ({w}×{h})"),
+            }
+        });
+        spheres = sphere_figs;
         pairs.push(html::EnvironmentPair {
-            state: st.name.clone(),
+            state: state.clone(),
             recovered,
             truth,
+            spheres,
+            figures: figures
+                .iter()
+                .find(|f| &f.state == state)
+                .map(|f| f.figures.clone()),
         });
     }
-    Ok(pairs)
+    pairs
 }

@@ -171,6 +171,14 @@ pub struct RunFigures {
     pub mean: BTreeMap<String, RowFigures>,
 }
 
+/// A training state's recovered environment against the dataset's
+/// ([`crate::eval::lighting::compare_environments`]).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct StateEnvironment {
+    pub state: String,
+    pub figures: crate::eval::lighting::EnvFigures,
+}
+
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Report {
     pub format: String,
@@ -193,6 +201,16 @@ pub struct Report {
     /// field, or when no surface qualifies.
     #[serde(default)]
     pub albedo_uniformity: Option<crate::eval::lighting::UniformityFigures>,
+    /// The ghost figures taken apart by where the training states' shadows fell
+    /// ([`crate::eval::shadows`]): over pixels lit in every training state, and per state over
+    /// its moved shadows. Absent in reports written before the field, and for datasets without
+    /// the training environments or the test views' masks.
+    #[serde(default)]
+    pub shadow_ghosts: Option<crate::eval::shadows::ShadowGhosts>,
+    /// Each training state's recovered environment against the one that lit its captures
+    /// (states whose dataset has the file; empty in reports written before the field).
+    #[serde(default)]
+    pub environments: Vec<StateEnvironment>,
     /// Table 1: the mean over every relighting run's images.
     pub relighting: BTreeMap<String, RowFigures>,
     /// Table 2: the mean over every synthesis run's images (empty without such runs).
@@ -201,6 +219,32 @@ pub struct Report {
     /// Rays traced (camera rays once per view, then the shading rays of every traced row).
     pub rays: u64,
     pub seconds: f64,
+}
+
+/// One sentence on [`Report::shadow_ghosts`], for `eval.md` and the report page: the ghost
+/// share where no shadow fell against inside each training state's moved shadows.
+pub fn shadow_ghosts_sentence(g: &crate::eval::shadows::ShadowGhosts) -> String {
+    let fig = |f: &Option<crate::eval::lighting::UniformityFigures>| match f {
+        Some(u) => format!(
+            "{:.1} % ({} pixels, mean deviation {:.1} %)",
+            100.0 * u.ghost_share,
+            u.pixels,
+            100.0 * u.spread
+        ),
+        None => "no pixels".into(),
+    };
+    let states: Vec<String> = g
+        .states
+        .iter()
+        .map(|s| format!("{}: {}", s.state, fig(&s.figures)))
+        .collect();
+    format!(
+        "By where the training states' shadows fell (background pixels; a state's true lighting \
+         traced through the scene as stage 3 saw it): ghosts among pixels lit in every training \
+         state {}; among pixels in a state's shadow and lit in another, {}.",
+        fig(&g.lit),
+        states.join("; ")
+    )
 }
 
 /// `eval.md`: Tables 1 and 2 of this dataset.
@@ -239,6 +283,26 @@ pub fn markdown(r: &Report) -> String {
             100.0 * u.ghost_share,
             100.0 * u.spread
         ));
+    }
+    if let Some(g) = &r.shadow_ghosts {
+        s.push_str(&shadow_ghosts_sentence(g));
+        s.push_str("\n\n");
+    }
+    if !r.environments.is_empty() {
+        s.push_str("Recovered environments against the truth (`docs/lighting-metrics.md`):\n\n| State | Irradiance error | Uniform map | Log error above the horizon | Uniform map | Luminous power |\n|---|---|---|---|---|---|\n");
+        for e in &r.environments {
+            let f = &e.figures;
+            s.push_str(&format!(
+                "| {} | {:.1} % | {:.1} % | {:.2} | {:.2} | {:+.0} % |\n",
+                e.state,
+                100.0 * f.irradiance_error,
+                100.0 * f.irradiance_error_uniform,
+                f.log_rmse_upper,
+                f.log_rmse_upper_uniform,
+                100.0 * f.power_error
+            ));
+        }
+        s.push('\n');
     }
     if r.selection != Selection::ALL {
         let sel = r.selection;

@@ -303,6 +303,15 @@ impl Dataset {
         read_planes(&self.path(relative), names, camera)
     }
 
+    /// The object-id mask of `frame` (0 = background), checked to be its camera's size; None
+    /// when the frame names no mask. Errors name the file.
+    pub fn frame_mask(&self, frame: &Frame) -> Result<Option<Vec<u8>>> {
+        match frame.mask_path.as_deref() {
+            Some(rel) => read_mask(&self.path(rel), &frame.camera).map(Some),
+            None => Ok(None),
+        }
+    }
+
     /// Ground truth, evaluation only: the environment that lit state `k`, read from its
     /// `environment` EXR (named after the state, negative texels set to 0 as for any scene
     /// environment, [`Environment::clamp_negative`]); None when the state records none.
