@@ -1,13 +1,14 @@
 """Generate a synthetic multi-state LightFuse dataset (format ``lightfuse-dataset/1``).
 
-Builds a procedural open room (``--preset bedroom|playroom|livingroom|kitchen|demo``, or the
-second family's ``study|gallery|workshop``: other shapes, materials and camera paths), then
-renders with Cycles on the CPU:
+Builds a procedural open room (``--preset bedroom|playroom|livingroom|kitchen|demo``, the
+second family's ``study|gallery|workshop``: other shapes, materials and camera paths, or the
+plain family's ``sunroom|atelier``: untextured floors and walls, procedural sun skies with hard
+shadows, chrome and glossy objects; ``scenes.PLAIN``), then renders with Cycles on the CPU:
 
 * K training states (``--states``, default 3): each a new seeded, physically plausible
   arrangement of the movable objects (upright on the floor or a furniture top, no overlap) under
-  a different bundled HDRI with a different rotation, from ``--views`` cameras around and above
-  the room;
+  a different bundled HDRI (or procedural sun sky, ``lfenv.SUN_SKIES``) with a different
+  rotation, from ``--views`` cameras around and above the room;
 * one held-out test state ``test0`` (a new arrangement) rendered from the same cameras under
   ``--relight`` environments not used in training (the ``relight`` list).
 
@@ -56,13 +57,19 @@ import lfio  # noqa: E402
 from lfaxes import bl_to_yup_matrix, cam_bl_to_yup, intrinsics, rows  # noqa: E402
 from lfblend import ID_PROP, SCENE_KEY  # noqa: E402
 from lfcli import Parser, UserError, quiet_stdout, run_main  # noqa: E402
-from lfenv import bundled_hdris, env_mean_luminance, load_env, resolve_hdri, rotate_env, setup_world  # noqa: E402
+from lfenv import PROCEDURAL, bundled_hdris, env_mean_luminance, load_env, resolve_hdri, rotate_env, setup_world  # noqa: E402
 from lffiles import DATASET_FORMAT, write_json  # noqa: E402
 from lfrender import frame_seed, make_tmpdir, render_beauty, render_geometry, setup_render, write_geometry  # noqa: E402
 
 # The paper-like presets, the demo, and the second family (scenes.FAMILY: other shapes,
 # materials and camera paths, for measuring on scenes nothing was tuned on).
-PRESET_NAMES = ["bedroom", "playroom", "livingroom", "kitchen", "demo", "study", "gallery", "workshop"]
+PRESET_NAMES = ["bedroom", "playroom", "livingroom", "kitchen", "demo", "study", "gallery", "workshop",
+                "sunroom", "atelier"]
+# The plain family's (scenes.PLAIN) default size: the training side of the third-party scene
+# issue 44 was found on (3 states x 16 views at 128 x 128, 3 test environments), with 8 test
+# views (as scripts/paper_tables.sh's presets), which a 2-core machine generates in ~30 min.
+PLAIN_SIZE = dict(res="128x128", views=16, test_views=8, states=3, spp=64, relight=3, max_bounces=4,
+                  denoise=True)
 # Captures are denoised (OpenImageDenoise, guided by albedo and normal) by default: a photograph
 # is nearly noise-free, and 16-spp speckle alone would cap any reconstruction's PSNR against the
 # demo's captures at ~28 dB (measured: raw 16 spp vs 512 spp, covered pixels).
@@ -94,11 +101,22 @@ def parse_args(argv):
     p.add_argument("--force", action="store_true", help="overwrite an existing non-empty --out")
     p.add_argument("--quiet", action="store_true", help="no per-frame progress lines")
     a = p.parse_args(argv)
-    base = DEMO if a.demo else FULL
     if a.preset is None:
         a.preset = "demo" if a.demo else "bedroom"
     if a.preset not in PRESET_NAMES:
         raise UserError(f"--preset: unknown preset {a.preset!r}; expected one of {', '.join(PRESET_NAMES)}")
+    import bpy  # noqa: F401  (first: scenes' bmesh and mathutils come with it)
+    import scenes
+
+    base = DEMO if a.demo else PLAIN_SIZE if a.preset in scenes.PLAIN else FULL
+    # A preset that names its environments (the plain family's sun skies) uses them unless told
+    # otherwise; --hdri-dir means the user's own HDRIs instead.
+    if not a.hdri_dir:
+        spec = scenes.PRESETS[a.preset]
+        if a.train_envs is None and "train_envs" in spec:
+            a.train_envs = ",".join(spec["train_envs"])
+        if a.test_envs is None and a.relight is None and "test_envs" in spec:
+            a.test_envs = ",".join(spec["test_envs"])
     for k, v in base.items():
         if getattr(a, k) is None:
             setattr(a, k, v)
@@ -169,7 +187,8 @@ def make_env(src: str, out_path: str, rng: random.Random, cache: dict) -> dict:
     shift = rng.randrange(w)
     scale = 1.0 / max(env_mean_luminance(env), 1e-6)
     lfio.write_rgb_exr(out_path, rotate_env(env, shift) * np.float32(scale))
-    return {"name": os.path.splitext(os.path.basename(src))[0], "rotation_deg": shift * 360.0 / w,
+    name = src[len(PROCEDURAL):] if src.startswith(PROCEDURAL) else os.path.splitext(os.path.basename(src))[0]
+    return {"name": name, "rotation_deg": shift * 360.0 / w,
             "scale": scale}
 
 

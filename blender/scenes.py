@@ -441,6 +441,42 @@ FAMILY = {
 PRESETS.update(FAMILY)
 
 
+# The plain family (issue 44): what hides a method that paints shadows into the base colour.
+# Untextured floors and walls (a shadow baked into a checker or wood grain is hard to see; on a
+# plain floor it is a dark blob every relit image shows), training states lit by procedural
+# skies with a sun (lfenv.SUN_SKIES: hard shadows, 80 % of the light from one direction) and
+# one soft HDRI, objects standing on the open floor so each state's shadows fall where another
+# state's floor is lit, chrome and glossy objects, a third wall (fewer open sides: less of each
+# environment is seen directly). "train_envs" / "test_envs": each state's environment, in
+# order, unless --train-envs / --test-envs say otherwise. Default size: generate.PLAIN_SIZE.
+PLAIN = {
+    "sunroom": dict(size=0.8, wall_h=0.6, obj_scale=1.6, floor="concrete", wall="wall",
+                    walls=("-y", "-x", "+x"), cameras="high",
+                    furniture=[block("bench", 0.5, 0.18, 0.22, 0.0, -0.65, "porcelain")],
+                    surfaces=[],
+                    objects=[("chrome_bottle", "chrome_bottle"), ("square_tin", "square_tin"),
+                             ("small_ball", "small_ball"), ("monkey", "monkey")],
+                    train_envs=["sun_low", "sun_mid", "interior"],
+                    test_envs=["sun_high", "courtyard", "studio"]),
+    "atelier": dict(size=0.75, wall_h=0.55, obj_scale=1.5, floor="linen", wall="slate", cameras="orbit",
+                    furniture=[],
+                    surfaces=[],
+                    objects=[("blocks", "blocks"), ("pot", "pot"), ("mug", "mug"),
+                             ("chrome_bottle", "chrome_bottle")],
+                    train_envs=["sun_mid", "city", "sun_low"],
+                    test_envs=["sun_high", "forest", "sunset"]),
+}
+PRESETS.update(PLAIN)
+
+# Which wall stands on which side: the box's size and centre for a room of half size S, wall
+# thickness T and height H ("-y" back, "-x" left, "+x" right; the presets have the first two).
+WALLS = {
+    "-y": lambda S, T, H: ((2 * S + 2 * T, T, H), (0, -S - T / 2, H / 2)),
+    "-x": lambda S, T, H: ((T, 2 * S, H), (-S - T / 2, 0, H / 2)),
+    "+x": lambda S, T, H: ((T, 2 * S, H), (S + T / 2, 0, H / 2)),
+}
+
+
 def build_scene(preset: str) -> dict:
     """Create the static room and the movable objects at the origin.  Returns a description:
     {size, surfaces: {name: (rect, z)}, obstacles: [rect], movables: [(name, object, radius)]}."""
@@ -448,8 +484,8 @@ def build_scene(preset: str) -> dict:
     S = P["size"]
     T = 0.1  # wall / floor thickness
     build_mesh("floor", [("box", dict(size=(2 * S + 2 * T, 2 * S + 2 * T, T), loc=(0, 0, -T / 2)), P["floor"])])
-    build_mesh("walls", [("box", dict(size=(2 * S + 2 * T, T, P["wall_h"]), loc=(0, -S - T / 2, P["wall_h"] / 2)), P["wall"]),
-                         ("box", dict(size=(T, 2 * S, P["wall_h"]), loc=(-S - T / 2, 0, P["wall_h"] / 2)), P["wall"])])
+    walls = [WALLS[side](S, T, P["wall_h"]) for side in P.get("walls", ("-y", "-x"))]
+    build_mesh("walls", [("box", dict(size=size, loc=loc), P["wall"]) for size, loc in walls])
     surfaces = {"floor": ((-S, S, -S, S), 0.0)}
     obstacles = []
     surf_rects = {}

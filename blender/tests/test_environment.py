@@ -12,7 +12,7 @@ import pytest
 from bltest import run_script
 
 import lfio
-from lfenv import load_env, resolve_hdri, rotate_env, setup_world
+from lfenv import SUN_SHARE, SUN_SKIES, load_env, resolve_hdri, rotate_env, setup_world
 from lfrender import render_beauty, setup_render
 
 
@@ -46,6 +46,27 @@ def test_rolled_env_equals_cycles_rotation(tmp_path):
     rel = np.abs(a - b).mean() / a.mean()
     assert rel < 2e-3, rel
     assert np.abs(a - c).mean() / a.mean() > 0.05  # the rotation matters
+
+
+@pytest.mark.parametrize("name", sorted(SUN_SKIES))
+def test_a_sun_sky_has_its_sun_at_its_elevation_carrying_its_share(name):
+    """The plain family's procedural skies: the brightest texel at the named elevation, the sun
+    disc SUN_SHARE of a horizontal surface's irradiance, a uniform ground below the horizon."""
+    env = load_env(resolve_hdri(name, None, "test"))
+    h, w, _ = env.shape
+    assert (h, w) == (512, 1024) and env.dtype == np.float32 and np.isfinite(env).all()
+    lum = env @ np.array([0.2126, 0.7152, 0.0722])
+    sun = lum > 1000 * np.median(lum)
+    rows = np.nonzero(sun)[0]
+    assert 4 <= len(rows) <= 40, len(rows)  # a disc of 0.6 deg radius: ~9 texels of 0.35 deg
+    elevation = 90.0 - (rows.mean() + 0.5) / h * 180.0
+    assert abs(elevation - SUN_SKIES[name]) < 0.2, elevation
+    theta = (np.arange(h) + 0.5) / h * math.pi
+    weight = (np.clip(np.cos(theta), 0, None) * np.sin(theta))[:, None]  # cos to the zenith x dOmega
+    share = (lum * weight)[sun].sum() / (lum * weight).sum()
+    assert abs(share - SUN_SHARE) < 1e-3, share
+    ground = lum[h // 2:]
+    assert ground.std() < 1e-6 * ground.mean() and ground.mean() > 0
 
 
 @pytest.mark.parametrize("preset", ["bedroom", "playroom", "livingroom", "kitchen"])

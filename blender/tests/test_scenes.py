@@ -197,6 +197,25 @@ def test_second_family_builds_stands_and_places_on_furniture(preset):
             assert round(float(m[2][3]), 6) in tops, (preset, name, m[2][3])
 
 
+@pytest.mark.parametrize("preset", ["sunroom", "atelier"])
+def test_the_plain_family_is_untextured_and_stands_on_the_open_floor(preset):
+    import scenes
+
+    spec = scenes.PLAIN[preset]
+    for m in (spec["floor"], spec["wall"]):
+        assert "tex" not in scenes.MATERIALS[m], (preset, m)
+    kinds = {k for _n, k in spec["objects"]}
+    assert "chrome_bottle" in kinds, kinds  # a mirror in every plain scene
+    _fresh()
+    desc = scenes.build_scene(preset)
+    walls = bpy.data.objects["walls"]
+    assert len(walls.data.vertices) == 8 * len(spec.get("walls", ("-y", "-x")))  # one box a wall
+    assert list(desc["surfaces"]) == ["floor"]
+    for seed in range(5):
+        arr = scenes.arrange(desc, random.Random(f"{seed}-arrange"))
+        assert all(abs(float(m[2][3])) < 1e-9 for m in arr.values()), arr
+
+
 @pytest.mark.parametrize("path", ["orbit", "low", "high", "inside"])
 def test_camera_paths_keep_their_promises(path):
     import generate
@@ -244,3 +263,38 @@ def test_a_second_family_dataset_end_to_end(tmp_path):
     for fr in frames:
         z = lfio.read_exr(str(out / fr["depth_file_path"]))["Z"]
         assert (z > 0).mean() > 0.5, fr["file_path"]  # inside a room: mostly surfaces
+
+
+def test_a_plain_family_dataset_is_lit_by_its_sun_skies_on_a_plain_floor(tmp_path):
+    """generate.py --preset sunroom: the training states under the preset's sun skies and HDRI
+    (their names recorded as the source), the test state under its own three, and an albedo
+    pass that is plain on every upward face (nothing textured to hide a baked shadow)."""
+    import lfio
+    import scenes
+
+    out = tmp_path / "sunroom"
+    run_script("generate.py", "--preset", "sunroom", "--res", "32x32", "--views", "2", "--test-views", "1",
+               "--spp", "4", "--seed", "2", "--out", out, "--quiet")
+    ds = json.loads((out / "dataset.json").read_text())
+    spec = scenes.PLAIN["sunroom"]
+    train = [s for s in ds["states"] if s["split"] == "train"]
+    test = next(s for s in ds["states"] if s["split"] == "test")
+    assert [s["environment_source"]["name"] for s in train] == spec["train_envs"]
+    relit = [r for r in test["relight"] if not r.get("training_state")]  # (not the synthesis runs)
+    assert [r["environment_source"]["name"] for r in relit] == spec["test_envs"]
+    floor = []
+    for st in train:
+        for fr in st["frames"]:
+            n = lfio.read_exr(str(out / fr["normal_file_path"]))
+            a = lfio.read_exr(str(out / fr["albedo_file_path"]))
+            z = lfio.read_exr(str(out / fr["depth_file_path"]))["Z"]
+            up = (n["G"] > 0.99) & (z > 0)  # Y-up world: the floor (and the bench's top)
+            floor.append(np.stack([a["R"], a["G"], a["B"]], -1)[up])
+    floor = np.concatenate(floor)
+    assert len(floor) > 100
+    # Every upward face (the floor, the walls' and the bench's tops, the tin's lid) is one plain
+    # colour: a handful of distinct values, the floor's the most common. A texture would give
+    # hundreds.
+    values, counts = np.unique(floor.round(2), axis=0, return_counts=True)
+    assert len(values) <= 6, values
+    assert np.allclose(values[counts.argmax()], scenes.MATERIALS["concrete"]["color"], atol=0.01), values
