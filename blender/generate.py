@@ -57,7 +57,7 @@ import lfio  # noqa: E402
 from lfaxes import bl_to_yup_matrix, cam_bl_to_yup, intrinsics, rows  # noqa: E402
 from lfblend import ID_PROP, SCENE_KEY  # noqa: E402
 from lfcli import Parser, UserError, quiet_stdout, run_main  # noqa: E402
-from lfenv import PROCEDURAL, bundled_hdris, env_mean_luminance, load_env, resolve_hdri, rotate_env, setup_world  # noqa: E402
+from lfenv import bundled_hdris, env_name, env_mean_luminance, load_env, resolve_hdri, rotate_env, setup_world  # noqa: E402
 from lffiles import DATASET_FORMAT, write_json  # noqa: E402
 from lfrender import frame_seed, make_tmpdir, render_beauty, render_geometry, setup_render, write_geometry  # noqa: E402
 
@@ -187,8 +187,7 @@ def make_env(src: str, out_path: str, rng: random.Random, cache: dict) -> dict:
     shift = rng.randrange(w)
     scale = 1.0 / max(env_mean_luminance(env), 1e-6)
     lfio.write_rgb_exr(out_path, rotate_env(env, shift) * np.float32(scale))
-    name = src[len(PROCEDURAL):] if src.startswith(PROCEDURAL) else os.path.splitext(os.path.basename(src))[0]
-    return {"name": name, "rotation_deg": shift * 360.0 / w,
+    return {"name": env_name(src), "rotation_deg": shift * 360.0 / w,
             "scale": scale}
 
 
@@ -365,7 +364,7 @@ def _run(a, out: str, final: str, t0: float) -> None:
             envs = test_envs if is_test else [train_envs[k]]
             runs = []
             for j, (src, spec) in enumerate(envs):
-                ename = os.path.splitext(os.path.basename(src))[0]
+                ename = env_name(src)
                 env_rel = f"env/{ename}.exr" if is_test else f"env/{name}.exr"
                 if is_test and any(r["env_rel"] == env_rel for r in runs):
                     env_rel = f"env/{ename}_{j}.exr"

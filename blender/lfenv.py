@@ -75,6 +75,14 @@ def sun_sky(elevation_deg: float, width: int = 1024) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def env_name(src: str) -> str:
+    """The name of a resolved environment (`resolve_hdri`'s result): a procedural sky's own
+    name, or the file's stem."""
+    if src.startswith(PROCEDURAL):
+        return src[len(PROCEDURAL):]
+    return os.path.splitext(os.path.basename(src))[0]
+
+
 def resolve_hdri(spec: str, hdri_dir: str | None, where: str) -> str:
     """A name of a bundled HDRI (or one in hdri_dir), of a procedural sun sky (SUN_SKIES:
     returned as "procedural:<name>", which `load_env` makes) or a path to an .exr/.hdr file."""

@@ -282,6 +282,8 @@ def test_a_plain_family_dataset_is_lit_by_its_sun_skies_on_a_plain_floor(tmp_pat
     assert [s["environment_source"]["name"] for s in train] == spec["train_envs"]
     relit = [r for r in test["relight"] if not r.get("training_state")]  # (not the synthesis runs)
     assert [r["environment_source"]["name"] for r in relit] == spec["test_envs"]
+    assert [r["environment"] for r in relit] == [f"env/{n}.exr" for n in spec["test_envs"]]
+    assert all(":" not in f["file_path"] for r in relit for f in r["frames"])
     floor = []
     for st in train:
         for fr in st["frames"]:
