@@ -122,8 +122,8 @@ pub struct RunArgs {
     /// Evaluate without Open Image Denoise (the paper denoised).
     #[arg(long)]
     pub no_denoise: bool,
-    /// Stage 3's image term: l1 (the paper's) or weighted-l2 (see `lightfuse invert`);
-    /// default: the preset's.
+    /// Stage 3's image term: l1 (the paper's), weighted-l2 or bright-l1 (see `lightfuse
+    /// invert`); default: the preset's.
     #[arg(long, value_enum)]
     pub loss: Option<Loss>,
 }
@@ -182,7 +182,8 @@ pub struct InvertArgs {
     /// estimation, no MIS: the paper's Table 4 baseline).
     #[arg(long, value_enum, default_value_t = Strategy::Full)]
     pub estimator: Strategy,
-    /// Image term: l1 (the paper's) or weighted-l2 (unbiased at low spp:
+    /// Image term: l1 (the paper's), weighted-l2 (unbiased at low spp) or bright-l1 (lit
+    /// pixels weigh more: keeps moved shadows out of the base colour;
     /// `stages::invert::train::Loss`); default: the preset's.
     #[arg(long, value_enum)]
     pub loss: Option<Loss>,

@@ -84,21 +84,46 @@ pub enum Loss {
     /// a relative error in bright pixels (no sunlit pixel dominates, as it would an unweighted
     /// L2) and near an absolute one in dark pixels (ε keeps them from dominating).
     WeightedL2,
+    /// w_p |L_p − I_p| with w_p = min(Ī_p / μ, 4), Ī_p the capture's channel mean at p and μ
+    /// the mean of the drawn pixels' captures (one image's): L1 on which a pixel's say grows
+    /// with how brightly the capture shows it lit (4: [`BRIGHT_WEIGHT_MAX`]).
+    ///
+    /// Not the paper's (it uses plain L1, eq. training-objectives). Why: the base colour is
+    /// shared by the states, the lighting is not, and what stage 3 gets wrong about a state's
+    /// lighting (a sun too dim or too blurred, a sky too bright where no view looks) moves a
+    /// pixel's prediction by a larger fraction of it where the direct light is blocked than
+    /// where it arrives. Under plain L1 a shadow that fell in one training state and not in
+    /// another pulls the shared base colour down wherever the recovered light fails to cast it,
+    /// and it comes back as a ghost under every new light (issue 44; `tests/separation.rs`:
+    /// 0.91 of the open floor inside the shadows). Weighting by the capture gives the lit
+    /// observations of a surface the larger say in its base colour (there 0.98-0.99), while a
+    /// texture keeps its contrast: every parameter is stepped by Adam, which normalises its
+    /// own gradient's scale, so only the relative weight of one surfel's (or one texel's)
+    /// observations changes, and a dark tile's observations are all weighted alike. The clip
+    /// keeps a highlight (the sun in chrome) from ruling its image. The cost: shadows also
+    /// teach the environments where the sun is, and with less say they teach it less (the
+    /// recovered suns carry less of the light).
+    BrightL1,
 }
 
+/// The largest weight [`Loss::BrightL1`] gives a pixel, in units of its image's mean capture.
+pub const BRIGHT_WEIGHT_MAX: f64 = 4.0;
+
 impl Loss {
-    /// ε of [`Loss::WeightedL2`] for an iteration's drawn captures: a tenth of their mean
-    /// (0 for L1).
+    /// The loss's constant for an iteration's drawn captures: for [`Loss::WeightedL2`] ε, a
+    /// tenth of their mean; for [`Loss::BrightL1`] μ, their mean; 0 for L1.
     pub fn epsilon(&self, captures: impl Iterator<Item = [f32; 3]>) -> f64 {
         match self {
             Loss::L1 => 0.0,
-            Loss::WeightedL2 => {
+            Loss::WeightedL2 | Loss::BrightL1 => {
                 let (mut sum, mut n) = (0.0f64, 0usize);
                 for t in captures {
                     sum += t.iter().map(|&v| v as f64).sum::<f64>();
                     n += 3;
                 }
-                (0.1 * sum / n.max(1) as f64).max(1e-6)
+                let mean = sum / n.max(1) as f64;
+                let share = if *self == Loss::WeightedL2 { 0.1 } else { 1.0 };
+                (share * mean).max(1e-6)
             }
         }
     }
@@ -120,6 +145,14 @@ impl Loss {
                 let mean = target.iter().map(|&v| v as f64).sum::<f64>() / 3.0;
                 let w = 1.0 / (mean + eps).max(1e-6);
                 (d.iter().map(|v| 0.5 * w * v * v).sum(), d.map(|v| w * v))
+            }
+            Loss::BrightL1 => {
+                let mean = target.iter().map(|&v| v as f64).sum::<f64>() / 3.0;
+                let w = (mean / eps).min(BRIGHT_WEIGHT_MAX);
+                (
+                    w * d.iter().map(|v| v.abs() as f64).sum::<f64>(),
+                    d.map(|v| w * v.signum() as f64),
+                )
             }
         }
     }
@@ -1050,10 +1083,10 @@ mod tests {
             let r = [0, 1, 2].map(|_| 2.0 * u());
             let t = [0, 1, 2].map(|_| 2.0 * u());
             let eps = 0.05 + 0.1 * u() as f64;
-            for loss in [Loss::L1, Loss::WeightedL2] {
+            for loss in [Loss::L1, Loss::WeightedL2, Loss::BrightL1] {
                 let (_, g) = loss.term(r, t, eps);
                 for c in 0..3 {
-                    if loss == Loss::L1 && (r[c] - t[c]).abs() < 2e-3 {
+                    if loss != Loss::WeightedL2 && (r[c] - t[c]).abs() < 2e-3 {
                         continue;
                     }
                     let h = 1e-3f32;
@@ -1070,6 +1103,25 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// `Loss::BrightL1`'s weights: a pixel at its image's mean capture counts as L1, one at a
+    /// tenth of it a tenth as much, and no pixel more than `BRIGHT_WEIGHT_MAX` times; the
+    /// weight depends on the capture alone, so a surface 0.3 times as bright as another under
+    /// the same light has all its pixels weighted 0.3 times as much (Adam's per-parameter
+    /// normalisation then leaves its own fit as it was).
+    #[test]
+    fn bright_l1_weighs_each_pixel_by_its_capture() {
+        let captures = [[1.0f32; 3], [0.1; 3], [20.0; 3], [0.3; 3]];
+        let mu = Loss::BrightL1.epsilon(captures.into_iter());
+        assert!((mu - 21.4 / 4.0).abs() < 1e-6, "{mu}");
+        let r = [0.0f32; 3];
+        let w = |t: [f32; 3]| Loss::BrightL1.term(r, t, 1.0).1[0].abs();
+        assert!((w([1.0; 3]) - 1.0).abs() < 1e-12);
+        assert!((w([0.1; 3]) - 0.1).abs() < 1e-7);
+        assert_eq!(w([20.0; 3]), BRIGHT_WEIGHT_MAX);
+        let (value, _) = Loss::BrightL1.term([1.0, 0.0, 0.5], [0.5; 3], 1.0);
+        assert!((value - 0.5 * 1.0).abs() < 1e-12, "{value}"); // weight 0.5, Σ|d| = 1
     }
 
     /// Why `Loss::WeightedL2` exists: an estimate that is 0 nine times in ten and 10 otherwise
