@@ -51,6 +51,7 @@ def row(scene, variant, d):
     e, inv = load(os.path.join(d, "eval.json")), load(os.path.join(d, "invert.json"))
     lf = e["relighting"].get("lightfuse", {})
     raw, resc = lf.get("raw"), lf.get("rescaled")
+    t2 = (e.get("synthesis") or {}).get("lightfuse", {}).get("raw")
     u = e.get("albedo_uniformity")
     alb = inv.get("albedo") or {}
     envs = [s["environment"] for s in inv["states"] if s.get("environment")]
@@ -63,6 +64,7 @@ def row(scene, variant, d):
     return dict(
         scene=scene, variant=variant,
         t1=raw and raw["psnr_srgb_db"], ssim=raw and raw["ssim_srgb"], t1r=resc and resc["psnr_srgb_db"],
+        t2=t2 and t2["psnr_srgb_db"],
         ghost=u and u["ghost_share"], spread=u and u["spread"],
         ghost_lit=(sg.get("lit") or {}).get("ghost_share"), ghost_shadows=in_shadows,
         alb_raw=alb.get("raw_error"), alb_scaled=alb.get("scaled_error"),
@@ -101,7 +103,9 @@ def main(res):
           "--no-images` (32 spp, denoised); a scene's variants in one sitting. Scenes: the demo, the plain "
           "family (**bold**: untextured floors and walls, sun skies, chrome), the presets and the second family "
           "(*italic*). Columns (docs/lighting-metrics.md): Table 1 = LightFuse's novel-state relighting, PSNR / "
-          "SSIM on sRGB without rescale, then PSNR after the median albedo rescale; ghost = share of the test "
+          "SSIM on sRGB without rescale, then PSNR after the median albedo rescale; Table 2 = the test "
+          "arrangement under each training state's recovered lighting (PSNR sRGB: how well the environments "
+          "light the scene); ghost = share of the test "
           "views' base colour more than 15 % off its surface's median over surfaces of uniform true albedo, "
           "then the same share among background pixels lit in every training state and among those in a "
           "training state's shadow and lit in another (`shadow_ghosts`: painted shadows show as the second "
@@ -120,16 +124,16 @@ def main(res):
                     specs.add(f.read().strip().split("=", 1)[1].replace(",", " ") or "(the fast preset)")
         print(f"- `{v}`: {'; '.join(sorted(specs)) or '?'}")
     print()
-    print("| Scene | Variant | Table 1 | rescaled | ghost (lit / shadows) | base colour raw / rescaled | irradiance (uniform) "
+    print("| Scene | Variant | Table 1 | rescaled | Table 2 | ghost (lit / shadows) | base colour raw / rescaled | irradiance (uniform) "
           "| log upper (uniform) | mirrors metallic / roughness | training views | wall |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         name = f"**{r['scene']}**" if r["scene"] in PLAIN else f"*{r['scene']}*" if r["scene"] in SECOND else r["scene"]
         mark = f" [{r['note']}]" if "note" in r else ""
         mirrors = ", ".join(f"{o} {m:.2f} / {g:.2f}" for o, m, g in r["mirrors"]) or "–"
         train = " / ".join(f"{x:.1f}" for x in r["train"])
         print(f"| {name} | {r['variant']}{mark} | {fmt(r['t1'], '.2f')} / {fmt(r['ssim'], '.3f')} "
-              f"| {fmt(r['t1r'], '.2f')} | {fmt(pct(r['ghost']), '.1f', ' %')} "
+              f"| {fmt(r['t1r'], '.2f')} | {fmt(r['t2'], '.2f')} | {fmt(pct(r['ghost']), '.1f', ' %')} "
               f"({fmt(pct(r['ghost_lit']), '.0f')} / {fmt(pct(r['ghost_shadows']), '.0f')} %) "
               f"| {fmt(r['alb_raw'] and 100 * r['alb_raw'], '.1f')} / {fmt(r['alb_scaled'] and 100 * r['alb_scaled'], '.1f')} % "
               f"| {fmt(r['irr'] and 100 * r['irr'], '.1f')} % ({fmt(r['irr_u'] and 100 * r['irr_u'], '.0f')} %) "

@@ -48,7 +48,9 @@
 //! the floor decide its base colour, and the ghost is gone on both floors (the checker's tiles
 //! as flat as every other row leaves them, 0.67 for the truth's 0.57 through this measure,
 //! which is the discs' blur and the recovery's, not this loss's). The suns it recovers carry
-//! even less of the light (2-7 %): the shadows that would teach them have less say.
+//! even less of the light (2-7 %): the shadows that would teach them have less say. It did not
+//! carry over to the first Cycles scene surveyed (sunroom, 3 states: more ghosts than L1,
+//! `docs/results/stage3-survey.md`), so this floor alone does not decide a default.
 //!
 //! So the prior removes the ghost only by flattening brightness: at the λ that passes the plain
 //! floor the checker is gone (0.979), and at λ 0.03 it is already 23 % flatter than the truth

@@ -102,7 +102,9 @@ pub enum Loss {
     /// observations changes, and a dark tile's observations are all weighted alike. The clip
     /// keeps a highlight (the sun in chrome) from ruling its image. The cost: shadows also
     /// teach the environments where the sun is, and with less say they teach it less (the
-    /// recovered suns carry less of the light).
+    /// recovered suns carry less of the light). Measured on the plain-family sunroom (Cycles,
+    /// 3 states; `docs/results/stage3-survey.md`) it is worse than L1: ghosts 49.7 % against
+    /// 40.2 %, training views 1-5 dB lower. An option, not a default.
     BrightL1,
 }
 
