@@ -34,6 +34,7 @@
 //! | `env_levels` 6 at lr / 6 | 0.915, 0.917, 0.916 | 4.1°, 3.0° (8 %, 4 %) | 0.669 |
 //! | `Loss::BrightL1` (the test below) | 0.989, 0.987, 0.983 | 6.8°, 9.0° (3 %, 2 %) | 0.672; no ghost on either tile (1.003, 0.966) |
 //! | `Loss::BrightL1` + `env_levels` 6 | 0.985, 0.989, 0.988 | 4.1°, 9.0° (7 %, 3 %) | – |
+//! | `light_fit` (the first test below; 2026-11-29) | 0.979, 0.982, 0.970 | 1.7°, 3.0° (20 %, 19 %) | 0.673; light tiles 0.976-0.990, dark 0.949-0.962 (its blue 0.1 % past the bound) |
 //!
 //! Also: 800 iterations of lighting alone instead of 267, 0.908-0.938; `Loss::WeightedL2`, a
 //! deeper ghost (0.72-0.79); the true environments held fixed, 1.016 (the measure is sound:
@@ -52,17 +53,25 @@
 //! carry over to the first Cycles scene surveyed (sunroom, 3 states: more ghosts than L1,
 //! `docs/results/stage3-survey.md`), so this floor alone does not decide a default.
 //!
+//! `light_fit` starts the loop from a linear fit of each state's lighting to the shadows the
+//! geometry casts ([`lightfuse::stages::invert::lightfit`]): the suns are found first, so the
+//! loop casts the moved shadows instead of painting them, and on the plain floor the ghost is
+//! gone with the suns 1.7° and 3.0° off and carrying 19-20 % of the light (still far below the
+//! truth's 85 %: the loop spreads them again). Its fit alone takes 4-7 s here. The checker's
+//! dark tiles keep a 4-5 % ghost, so that test is ignored with the others.
+//!
 //! So the prior removes the ghost only by flattening brightness: at the λ that passes the plain
 //! floor the checker is gone (0.979), and at λ 0.03 it is already 23 % flatter than the truth
 //! while the checker's tiles keep an 11 % ghost. The checker test is therefore ignored (it
 //! fails), as is the defaults' plain-floor test; neither option is a preset's default.
+//! CI runs the light fit's plain-floor test (the others with `--ignored`).
 
 use glam::Vec3;
 use lightfuse::io::dataset::Observation;
 use lightfuse::scene::{Camera, Environment, Rigid, Scene, Surfels};
 use lightfuse::shade::envmap::{uv_to_direction, EnvMap};
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
-use lightfuse::stages::invert::train::{initial_environment, EnvUpdate, Inverter, Loss, Settings};
+use lightfuse::stages::invert::train::{EnvUpdate, Inverter, Loss, Settings};
 use lightfuse::trace::TraceScene;
 
 mod common;
@@ -386,17 +395,19 @@ fn invert(checker: bool, mut settings: Settings) -> Outcome {
     let obs = captures(&t);
     let mut scene = t.scene.clone();
     let states = train_states(&scene, &obs);
-    let init: Vec<Environment> = states
-        .iter()
-        .map(|s| initial_environment(&s.views, EW, EH))
-        .collect();
     settings.env_width = EW as u32;
     settings.env_height = EH as u32;
     grey_start(&mut scene, &settings);
     let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
     let refs: Vec<&Surfels> = surfels.iter().collect();
-    let mut inv = Inverter::new(settings, &refs, &init);
     let mut trace = TraceScene::from_components(&refs);
+    let (mut inv, fit) = Inverter::start(settings, &trace, &states, &refs);
+    if let Some(f) = &fit {
+        println!(
+            "light fit: {} rows, {} sky texels, residual {:.3} -> {:.3}, {:.1} s, groups {:?}",
+            f.rows, f.sky_texels, f.residual[0], f.residual[1], f.seconds, f.groups
+        );
+    }
     while inv.iteration < inv.settings.iterations {
         inv.step(&mut trace, &mut surfels, &states);
     }
@@ -545,7 +556,9 @@ fn sun_share(env: &Environment, sun: Vec3) -> f64 {
 /// the checker floor: no ghost on either (every tile's base colour in the shadows within 5 %
 /// of its open floor's), and the suns within 10°. Not asserted: the suns' share of the light,
 /// which this loss leaves lower than plain L1 does (the shadows that teach it have less say).
+/// Ignored since the survey (it lost to L1 on the sunroom; `--light-fit` is the test CI runs).
 #[test]
+#[ignore]
 fn brightness_weighted_l1_keeps_the_shadows_out_of_the_paint() {
     let s = Settings {
         loss: Loss::BrightL1,
@@ -562,4 +575,54 @@ fn brightness_weighted_l1_keeps_the_shadows_out_of_the_paint() {
     let checker = invert(true, s);
     assert_no_ghost(&checker, 0);
     assert_no_ghost(&checker, 1);
+}
+
+/// Stage 3 started from the linear lighting fit ([`Settings::light_fit`],
+/// `lightfuse::stages::invert::lightfit`), the rest the fast preset: no ghost on the plain
+/// floor, the suns within 10° and carrying more than a tenth of the light; on the checker,
+/// no ghost on either tile and the tiles' contrast within 10 % of the truth's through the
+/// same measure.
+#[test]
+fn a_lighting_fit_from_the_shadows_casts_them() {
+    let fit = || Settings {
+        light_fit: true,
+        ..Settings::fast()
+    };
+    let o = invert(false, fit());
+    for (k, a) in o.sun_error.iter().enumerate() {
+        assert!(
+            *a <= 10.0,
+            "state {k}: recovered sun {a:.1}° from the truth"
+        );
+    }
+    for (k, (got, truth)) in o.sun_share.iter().enumerate() {
+        assert!(
+            *got > 0.1 && *truth > 0.8,
+            "state {k}: sun share {got:.3} (truth {truth:.3})"
+        );
+    }
+    assert_no_ghost(&o, 0);
+}
+
+/// The lighting fit on the checker floor (ignored: see the module's table).
+#[test]
+#[ignore]
+fn a_lighting_fit_keeps_the_checker() {
+    let o = invert(
+        true,
+        Settings {
+            light_fit: true,
+            ..Settings::fast()
+        },
+    );
+    assert_no_ghost(&o, 0);
+    assert_no_ghost(&o, 1);
+    for c in 0..3 {
+        let r = o.floor.open[1][c] / o.floor.open[0][c];
+        let want = o.true_floor.open[1][c] / o.true_floor.open[0][c];
+        assert!(
+            (r / want - 1.0).abs() <= 0.1,
+            "channel {c}: dark / light tiles {r:.3} (truth {want:.3})"
+        );
+    }
 }

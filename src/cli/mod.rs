@@ -202,6 +202,11 @@ pub struct InvertArgs {
     /// paper); 0 turns it off; default: the preset's.
     #[arg(long)]
     pub base_color_prior: Option<f32>,
+    /// Start stage 3 from a linear fit of each state's lighting to the shadows the geometry
+    /// casts (and one base colour per surface group) instead of the sky seen and grey
+    /// (`stages::invert::lightfit`; not in the paper).
+    #[arg(long)]
+    pub light_fit: bool,
     /// Sub-pixel positions per training pixel whose primary records are traced once and
     /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
     /// memory in proportion (the report states it).
@@ -796,6 +801,9 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     }
     if let Some(l) = a.env_levels {
         settings.env_levels = l;
+    }
+    if a.light_fit {
+        settings.light_fit = true;
     }
     if let Some(l) = a.base_color_prior {
         if !(l.is_finite() && l >= 0.0) {

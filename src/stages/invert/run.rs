@@ -4,7 +4,8 @@
 
 use super::cache::TrainState;
 use super::cache::{CacheFigures, PrimaryCache};
-use super::train::{initial_environment, Inverter, Settings};
+use super::lightfit::FitFigures;
+use super::train::{Inverter, Settings};
 use crate::error::{Error, Result};
 use crate::eval::lighting::{AlbedoFigures, MaterialFigures};
 use crate::eval::stage3::StateReport;
@@ -71,6 +72,9 @@ pub struct Report {
     /// Per object, the mean metallic and roughness its pixels see, and the generator's values
     /// when the dataset records them.
     pub materials: Vec<MaterialFigures>,
+    /// What the linear lighting fit found and cost (`--light-fit`; [`super::lightfit`]).
+    #[serde(default)]
+    pub light_fit: Option<FitFigures>,
 }
 
 /// What a resumed run needs: the inverter (parameters, Adam, iteration, generator), and the
@@ -80,6 +84,9 @@ struct Checkpoint {
     inverter: Inverter,
     #[serde(default)]
     training_seconds: f64,
+    /// [`super::lightfit`]'s figures when the run started from it.
+    #[serde(default)]
+    light_fit: Option<FitFigures>,
 }
 
 impl Resumable for Checkpoint {
@@ -165,10 +172,6 @@ pub fn invert(opts: &Options) -> Result<Report> {
         opts.work.invert(),
         opts.quiet,
     )?;
-    let (w, h) = (
-        opts.settings.env_width as usize,
-        opts.settings.env_height as usize,
-    );
     let mut loop_states: Vec<TrainState> = Vec::new();
     let mut names = Vec::new();
     for (j, &k) in train_states.iter().enumerate() {
@@ -192,6 +195,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
     }
 
     let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
+    let mut trace = TraceScene::from_components(&surfels.iter().collect::<Vec<_>>());
     let ckpt = stage_files.checkpoint();
     let log_path = stage_files.log();
     let (mut c, resumed) = resume_or_start(
@@ -202,21 +206,32 @@ pub fn invert(opts: &Options) -> Result<Report> {
         || {
             say(
                 opts.quiet,
-                "initialising each state's environment from the pixels its views see it in",
+                if opts.settings.light_fit {
+                    "fitting each state's lighting to the shadows (linear, 32x16 texels)"
+                } else {
+                    "initialising each state's environment from the pixels its views see it in"
+                },
             );
-            let envs: Vec<_> = loop_states
-                .iter()
-                .map(|s| initial_environment(&s.views, w, h))
-                .collect();
             let refs: Vec<&Surfels> = surfels.iter().collect();
+            let (inverter, light_fit) =
+                Inverter::start(opts.settings.clone(), &trace, &loop_states, &refs);
+            if let Some(f) = &light_fit {
+                say(
+                    opts.quiet,
+                    &format!(
+                        "lighting fit: {} rows, {} sky texels, residual {:.3} -> {:.3}, {:.1} s",
+                        f.rows, f.sky_texels, f.residual[0], f.residual[1], f.seconds
+                    ),
+                );
+            }
             Ok(Checkpoint {
-                inverter: Inverter::new(opts.settings.clone(), &refs, &envs),
+                inverter,
                 training_seconds: 0.0,
+                light_fit,
             })
         },
     )?;
     let mut log = StageLog::create(&log_path, resumed)?;
-    let mut trace = TraceScene::from_components(&surfels.iter().collect::<Vec<_>>());
 
     let total = opts.settings.iterations;
     // An iteration's cost is about proportional to its samples per pixel.
@@ -286,6 +301,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
         states: Vec::new(),
         albedo: None,
         materials: Vec::new(),
+        light_fit: c.light_fit.clone(),
     };
     let figures = crate::eval::stage3::measure(
         &out,

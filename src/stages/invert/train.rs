@@ -232,6 +232,11 @@ pub struct Settings {
     /// surfel in units of three pixels' image term. 0: off (old checkpoints and reports).
     #[serde(default)]
     pub lambda_base_color: f32,
+    /// Start from [`super::lightfit`]'s linear fit of the lighting from the shadows (and its
+    /// base colour per group) instead of the sky seen and grey (not in the paper; old
+    /// checkpoints and reports: off).
+    #[serde(default)]
+    pub light_fit: bool,
     /// Initial material (activated values).
     pub init_base_color: f32,
     pub init_metallic: f32,
@@ -306,6 +311,7 @@ impl Settings {
             lr_decay: 0.1,
             lambda_tv: 0.01,
             lambda_base_color: 0.0,
+            light_fit: false,
             init_base_color: 0.5,
             init_metallic: 0.02,
             init_roughness: 0.7,
@@ -801,6 +807,74 @@ impl Inverter {
         v
     }
 
+    /// Stage 3's starting point for `states`: the environments from the pixels that see them
+    /// ([`initial_environment`]) and the settings' grey, or with [`Settings::light_fit`] the
+    /// linear fit of [`super::lightfit`] (its environments resampled to the loop's size, its
+    /// base colour per group on every surfel), whose figures come back too.
+    pub fn start(
+        settings: Settings,
+        trace: &TraceScene,
+        states: &[TrainState],
+        components: &[&Surfels],
+    ) -> (Inverter, Option<super::lightfit::FitFigures>) {
+        let (w, h) = settings.env_size();
+        let envs: Vec<Environment> = states
+            .iter()
+            .map(|s| initial_environment(&s.views, w, h))
+            .collect();
+        let fit_it = settings.light_fit;
+        let seed = settings.seed;
+        let grey = settings.init_base_color;
+        let mut inv = Inverter::new(settings, components, &envs);
+        if !fit_it {
+            return (inv, None);
+        }
+        let fit = {
+            let cache = inv.ensure_cache(trace, states);
+            super::lightfit::fit(trace, states, cache, components, seed)
+        };
+        for (k, e) in fit.envs.iter().enumerate() {
+            let fine = e.resample(w, h);
+            inv.envs[k] = fine
+                .pixels
+                .iter()
+                .flat_map(|p| p.map(|v| v.max(1e-6).ln()))
+                .collect();
+        }
+        for (c, colors) in fit.surfel_colors(components, grey).iter().enumerate() {
+            inv.set_base_colors(c, colors);
+        }
+        (inv, Some(fit.figures))
+    }
+
+    /// The training pixels' primary records, traced on first use (`trace` with `states`'
+    /// placements; the cache is not checkpointed).
+    pub fn ensure_cache(&mut self, trace: &TraceScene, states: &[TrainState]) -> &PrimaryCache {
+        let s = &self.settings;
+        self.cache.get_or_insert_with(|| {
+            PrimaryCache::build(
+                trace,
+                states,
+                s.primary_jitters.max(1),
+                (s.seed & 0xffff_ffff) as u32 ^ JITTER_SEED,
+            )
+        })
+    }
+
+    /// Component `c`'s base colours (activated values, one per surfel) as the starting point,
+    /// in place of the settings' grey.
+    pub fn set_base_colors(&mut self, c: usize, colors: &[[f32; 3]]) {
+        let m = &mut self.materials[c];
+        assert_eq!(
+            m.base_color.len(),
+            3 * colors.len(),
+            "one colour per surfel"
+        );
+        for (dst, &v) in m.base_color.iter_mut().zip(colors.iter().flatten()) {
+            *dst = logit(v.clamp(1e-3, 1.0 - 1e-3));
+        }
+    }
+
     /// One iteration. `trace` holds the fixed geometry and `surfels` the same components (for
     /// the backward pass); both get this iteration's materials.
     pub fn step(
@@ -831,14 +905,7 @@ impl Inverter {
         // gradient vanishes at a biased fit.
         let seed = (self.next() & 0xffff_ffff) as u32;
         let seed_grad = (self.next() & 0xffff_ffff) as u32;
-        if self.cache.is_none() {
-            self.cache = Some(PrimaryCache::build(
-                trace,
-                states,
-                s.primary_jitters.max(1),
-                (s.seed & 0xffff_ffff) as u32 ^ JITTER_SEED,
-            ));
-        }
+        self.ensure_cache(trace, states);
         let cache = self.cache.as_ref().expect("built above");
 
         self.write_materials(surfels);
