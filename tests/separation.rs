@@ -479,23 +479,29 @@ fn assert_no_ghost(o: &Outcome, k: usize) {
     }
 }
 
-#[test]
-fn shadows_are_explained_by_occlusion_not_paint() {
-    let o = invert(false, settings());
-    assert_no_ghost(&o, 0);
+/// Each state's sun within 10° of the truth and carrying a real share of a level floor's
+/// irradiance (more than a tenth, the truth's above 80 %): the sun casts the shadows, not a
+/// glow.
+fn assert_suns_found(o: &Outcome) {
     for (k, a) in o.sun_error.iter().enumerate() {
         assert!(
             *a <= 10.0,
             "state {k}: recovered sun {a:.1}° from the truth"
         );
     }
-    // The sun casts the shadows: it carries a real share of the irradiance, not a glow.
     for (k, (got, truth)) in o.sun_share.iter().enumerate() {
         assert!(
             *got > 0.1 && *truth > 0.8,
             "state {k}: sun share {got:.3} (truth {truth:.3})"
         );
     }
+}
+
+#[test]
+fn shadows_are_explained_by_occlusion_not_paint() {
+    let o = invert(false, settings());
+    assert_no_ghost(&o, 0);
+    assert_suns_found(&o);
 }
 
 /// The prior must not flatten a texture of brightness alone (same chromaticity, so its weights
@@ -584,23 +590,14 @@ fn brightness_weighted_l1_keeps_the_shadows_out_of_the_paint() {
 /// same measure.
 #[test]
 fn a_lighting_fit_from_the_shadows_casts_them() {
-    let fit = || Settings {
-        light_fit: true,
-        ..Settings::fast()
-    };
-    let o = invert(false, fit());
-    for (k, a) in o.sun_error.iter().enumerate() {
-        assert!(
-            *a <= 10.0,
-            "state {k}: recovered sun {a:.1}° from the truth"
-        );
-    }
-    for (k, (got, truth)) in o.sun_share.iter().enumerate() {
-        assert!(
-            *got > 0.1 && *truth > 0.8,
-            "state {k}: sun share {got:.3} (truth {truth:.3})"
-        );
-    }
+    let o = invert(
+        false,
+        Settings {
+            light_fit: true,
+            ..Settings::fast()
+        },
+    );
+    assert_suns_found(&o);
     assert_no_ghost(&o, 0);
 }
 
