@@ -175,6 +175,13 @@ impl PrimaryCache {
         (self.rays[e], rec)
     }
 
+    /// Entry `e`'s camera ray and record without its material sums (opacity, position and
+    /// normal only: what depends on the fixed geometry alone).
+    #[inline]
+    pub fn geometry(&self, e: usize) -> (TraceRay, SurfaceRecord) {
+        (self.rays[e], self.records[e])
+    }
+
     /// Entry `e`'s composited hits, front to back.
     #[inline]
     pub fn hits(&self, e: usize) -> &[WeightedHit] {

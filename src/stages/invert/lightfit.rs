@@ -46,6 +46,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::cache::{PrimaryCache, TrainState};
+use super::train::fill_by_rows;
 use crate::scene::environment::texel_solid_angle;
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Environment, Surfels};
@@ -55,6 +56,7 @@ use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The fit's environment: 32×16 texels (11.25° each). A sun falls in one texel; finer maps
 /// cost the square of their texel count in the normal equations.
@@ -83,7 +85,7 @@ pub struct FitFigures {
     pub sky_texels: usize,
     /// Groups and their fitted base colours: (component, normal axis 0-2, ρ).
     pub groups: Vec<(u32, u32, [f32; 3])>,
-    /// Visibility rays traced.
+    /// Visibility rays traced (one per direction above a row's horizon).
     pub rays: u64,
     /// Mean absolute luminance residual over the mean luminance, first and last round.
     pub residual: [f64; 2],
@@ -182,7 +184,7 @@ pub fn fit(
             let npix = obs.camera.w * obs.camera.h;
             for p in 0..npix {
                 let e = cache.entry(image, p, 0);
-                let (ray, rec) = cache.record(e, components);
+                let (ray, rec) = cache.geometry(e);
                 let rgb = obs.rgb[p as usize].map(|v| v.max(0.0) as f64);
                 if rec.alpha < SKY_ALPHA {
                     let [u, v] = direction_to_uv(Vec3::from_array(ray.dir));
@@ -249,6 +251,7 @@ pub fn fit(
     // 3. Each row's transport: SUB² directions per texel, visibility through the state's
     // placement, cosine, solid angle / π.
     let placed: Vec<_> = states.iter().map(|s| trace.place(&s.transforms)).collect();
+    let traced = AtomicU64::new(0);
     let rows: Vec<Row> = jobs
         .par_iter()
         .map(|&(k, group, s)| {
@@ -257,6 +260,7 @@ pub fn fit(
             let n = Vec3::from_array(s.n.map(|v| v as f32)).normalize_or_zero();
             let origin = (x + states[k].eps * n).to_array();
             let t = transport(n, |d| {
+                traced.fetch_add(1, Ordering::Relaxed);
                 placed[k].transmittance(origin, d.to_array(), 0.0, f32::INFINITY)
             });
             Row {
@@ -267,7 +271,7 @@ pub fn fit(
             }
         })
         .collect();
-    let rays = (rows.len() * ntex * SUB * SUB / 2) as u64;
+    let rays = traced.into_inner();
 
     // 4. The sky's texels, measured directly, and the weak prior on the others.
     let sky_rows: Vec<Vec<SkyTexel>> = sky
@@ -375,31 +379,16 @@ pub const PRIOR: f64 = 0.1;
 /// solve is free to leave it black; a view of a new arrangement, or one held out, may look
 /// straight at it (the demo's held-out backgrounds fell to 7.5 dB without this).
 pub fn fill(seen: &[SkyTexel]) -> Vec<SkyTexel> {
-    let mut rows: Vec<([f64; 3], u32)> = vec![([0.0; 3], 0); HEIGHT];
-    let mut is_seen = vec![false; WIDTH * HEIGHT];
+    let mut texels: Vec<Option<[f64; 3]>> = vec![None; WIDTH * HEIGHT];
     for &(t, v, _) in seen {
-        is_seen[t] = true;
-        let r = &mut rows[t / WIDTH];
-        for c in 0..3 {
-            r.0[c] += v[c];
-        }
-        r.1 += 1;
+        texels[t] = Some(v);
     }
-    let with: Vec<usize> = (0..HEIGHT).filter(|&y| rows[y].1 > 0).collect();
-    if with.is_empty() {
+    let Some(filled) = fill_by_rows(WIDTH, &texels) else {
         return Vec::new();
-    }
+    };
     (0..WIDTH * HEIGHT)
-        .filter(|&t| !is_seen[t])
-        .map(|t| {
-            let y = t / WIDTH;
-            let near = *with
-                .iter()
-                .min_by_key(|&&r| r.abs_diff(y))
-                .expect("non-empty");
-            let (sum, n) = rows[near];
-            (t, sum.map(|v| v / n as f64), false)
-        })
+        .filter(|&t| texels[t].is_none())
+        .map(|t| (t, filled[t], false))
         .collect()
 }
 

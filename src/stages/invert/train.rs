@@ -1103,38 +1103,57 @@ pub fn initial_environment(views: &[&Observation], width: usize, height: usize) 
         }
     }
     let mean_all = all.map(|v| (v / all_n.max(1) as f64).max(1e-3));
-    let rows: Vec<Option<[f64; 3]>> = (0..height)
-        .map(|y| {
+    let texels: Vec<Option<[f64; 3]>> = (0..width * height)
+        .map(|j| (count[j] > 0).then(|| sum[j].map(|v| v / count[j] as f64)))
+        .collect();
+    let px = fill_by_rows(width, &texels)
+        .unwrap_or_else(|| vec![mean_all; width * height])
+        .into_iter()
+        .map(|v| v.map(|x| (x as f32).max(1e-4)))
+        .collect();
+    Environment::new("initial", width, height, px)
+}
+
+/// A lat-long map of `width` columns from the texels some view saw (`texels`, row-major; None:
+/// unseen): each unseen texel takes the mean of its row's seen texels, rows with none the
+/// nearest such row's (the upper one on a tie). None when no texel was seen. The one home of
+/// this guess: [`initial_environment`] starts the loop from it and
+/// [`super::lightfit::fill`] holds the fit's unconstrained texels to it.
+pub fn fill_by_rows(width: usize, texels: &[Option<[f64; 3]>]) -> Option<Vec<[f64; 3]>> {
+    let height = texels.len() / width;
+    let rows: Vec<Option<[f64; 3]>> = texels
+        .chunks(width)
+        .map(|row| {
             let (mut s, mut n) = ([0.0f64; 3], 0u32);
-            for x in 0..width {
-                let j = y * width + x;
-                if count[j] > 0 {
-                    for c in 0..3 {
-                        s[c] += sum[j][c] / count[j] as f64;
-                    }
-                    n += 1;
+            for v in row.iter().flatten() {
+                for c in 0..3 {
+                    s[c] += v[c];
                 }
+                n += 1;
             }
             (n > 0).then(|| s.map(|v| v / n as f64))
         })
         .collect();
     let seen: Vec<usize> = (0..height).filter(|&y| rows[y].is_some()).collect();
-    let px = (0..width * height)
-        .map(|j| {
-            let y = j / width;
-            let v = if count[j] > 0 {
-                sum[j].map(|v| v / count[j] as f64)
-            } else if let Some(r) = rows[y] {
-                r
-            } else if let Some(&near) = seen.iter().min_by_key(|&&r| r.abs_diff(y)) {
-                rows[near].expect("seen row")
-            } else {
-                mean_all
-            };
-            v.map(|x| (x as f32).max(1e-4))
-        })
-        .collect();
-    Environment::new("initial", width, height, px)
+    if seen.is_empty() {
+        return None;
+    }
+    Some(
+        texels
+            .iter()
+            .enumerate()
+            .map(|(j, v)| {
+                let y = j / width;
+                v.or(rows[y]).unwrap_or_else(|| {
+                    let near = *seen
+                        .iter()
+                        .min_by_key(|&&r| r.abs_diff(y))
+                        .expect("a seen row");
+                    rows[near].expect("seen row")
+                })
+            })
+            .collect(),
+    )
 }
 
 #[cfg(test)]
