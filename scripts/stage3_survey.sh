@@ -118,6 +118,7 @@ for s in $scenes; do
       # shellcheck disable=SC2086  # the variant's options are words
       /usr/bin/time -f "%e %M" -a -o "$vw/time.txt" "$lf" invert "$ds" "$vw" --preset fast --resume $opts >&2
     fi
+    # (evaluate renders with the bounces the variant trained with: its invert/report.json)
     say "$s / $name: lightfuse evaluate --no-images"
     "$lf" evaluate "$ds" "$vw" --no-images >&2
     mkdir -p "$keep"

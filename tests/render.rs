@@ -518,3 +518,141 @@ fn cli_render_denoise() {
     let (mse, n, d) = (|a| mse(a, true), &n, &d);
     assert!(mse(d) < mse(n) / 2.0, "{} vs {}", mse(d), mse(n));
 }
+
+/// The reference for deeper vertices: a brute-force walk written here from the public pieces
+/// alone (composite, cosine sampling, f·cos, the environment lookup), sharing nothing with the
+/// estimator's walk but them. Cosine continuations only, the escaped share of each
+/// continuation sees the environment, `bounces + 1` vertices: light after at most
+/// `bounces + 1` scattering events, what [`Estimator::bounces`] = `bounces` estimates with
+/// next-event estimation at every vertex.
+fn brute_force(
+    placed: &lightfuse::trace::Placed,
+    env: &EnvMap,
+    eps: f32,
+    (o, d): ([f32; 3], [f32; 3]),
+    bounces: u32,
+    rng: &mut lightfuse::scene::synthetic::SplitMix,
+) -> [f64; 3] {
+    let mut out = [0.0f64; 3];
+    let mut thr = [1.0f64; 3];
+    let mut rec = placed.composite(o, d, 0.0, f32::INFINITY);
+    let mut dir = Vec3::from_array(d);
+    for v in 0..=bounces + 1 {
+        let a = if rec.hits == 0 {
+            0.0
+        } else {
+            rec.alpha.max(0.0)
+        } as f64;
+        let e = env.eval(dir);
+        for c in 0..3 {
+            out[c] += thr[c] * (1.0 - a) * e[c] as f64;
+        }
+        if a <= 0.0 || v == bounces + 1 {
+            break;
+        }
+        let n = Vec3::from_array(rec.unit_normal());
+        if n == Vec3::ZERO {
+            break;
+        }
+        let m = Material {
+            base_color: rec.mean_base_color(),
+            metallic: rec.mean_metallic(),
+            roughness: rec.mean_roughness(),
+        };
+        let Some((wi, pdf)) = brdf::sample_cosine(n, [rng.f32(), rng.f32()]) else {
+            break;
+        };
+        let f = brdf::eval_f_cos(n, -dir, wi, &m);
+        for c in 0..3 {
+            thr[c] *= a * f[c] as f64 / pdf as f64;
+        }
+        let x = Vec3::from_array(rec.mean_position()) + eps * n;
+        rec = placed.composite(x.to_array(), wi.to_array(), eps, f32::INFINITY);
+        dir = wi;
+    }
+    out
+}
+
+/// Deeper vertices (`Estimator::bounces` > 1, not in the paper) estimate the multi-bounce
+/// light without bias: in a bright diffuse corner (a white floor and a near-white sphere on
+/// it, a smooth sky brighter at the zenith) each pixel's mean over 64 samples of the estimator
+/// with 3 bounces against the mean over 512 of the brute-force walk above; the difference
+/// over the image within 4 standard errors (estimated from the per-pixel differences; pixels
+/// use independent streams) and 1 % (f32 sums; the walk reads the records at the composited
+/// mean position exactly as the estimator does, so only noise separates them). The test can
+/// fail: 1 bounce, the paper's, is darker here by more than 2 % and 6 standard errors.
+#[test]
+fn deeper_vertices_match_a_brute_force_walk() {
+    let scene = scene_of(vec![
+        floor(-0.5, 1.5, 0.05, mat([0.9, 0.9, 0.85], 0.0, 0.9)),
+        sphere(Vec3::ZERO, 0.5, 3000, mat([0.95, 0.9, 0.8], 0.0, 0.9)),
+    ]);
+    let trace = TraceScene::new(&scene);
+    let placed = trace.place_state(&scene.states[0]);
+    let (w, h) = (32usize, 16usize);
+    let px: Vec<[f32; 3]> = (0..w * h)
+        .map(|i| {
+            let v = (i / w) as f32 / h as f32;
+            [
+                0.4 + 1.6 * (1.0 - v),
+                0.5 + 1.4 * (1.0 - v),
+                0.7 + 1.0 * (1.0 - v),
+            ]
+        })
+        .collect();
+    let env = EnvMap::new(&Environment::new("sky", w, h, px), 0.0);
+    let eps = self_hit_epsilon(&scene, &scene.states[0]);
+    // Close to where the sphere meets the floor, where light bounces most.
+    let cam = camera(Vec3::new(0.0, -0.25, 1.3), 16, 16, 12.0);
+    let mut rng = lightfuse::scene::synthetic::SplitMix(11);
+    let mut diffs = vec![Vec::new(); 2];
+    let mut sums = [0.0f64; 3];
+    for y in 0..16u32 {
+        for x in 0..16u32 {
+            let (o, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+            let n = 512;
+            let mut r = 0.0f64;
+            for _ in 0..n {
+                r += brute_force(&placed, &env, eps, (o, d), 3, &mut rng)[1];
+            }
+            let r = r / n as f64;
+            for (k, b) in [3u32, 1].into_iter().enumerate() {
+                let est = Estimator::new(&placed, &env, eps).with_bounces(b);
+                // The pixel's centre ray, as the walk's.
+                let s = Sampler::new(y * 16 + x, 5);
+                let mut e = 0.0f64;
+                for i in 0..64 {
+                    e += est.radiance(o, d, &s, i).radiance[1] as f64;
+                }
+                let e = e / 64.0;
+                diffs[k].push(e - r);
+                if k == 0 {
+                    sums[0] += e;
+                    sums[1] += r;
+                }
+            }
+            sums[2] += 1.0;
+        }
+    }
+    let stats = |v: &[f64]| {
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let var = v.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        (mean, (var / n).sqrt())
+    };
+    let (m3, se3) = stats(&diffs[0]);
+    let (m1, se1) = stats(&diffs[1]);
+    let level = sums[1] / sums[2];
+    println!(
+        "mean radiance {level:.4}: 3 bounces {:.4} (diff {m3:.5}, se {se3:.5}); 1 bounce diff {m1:.5} (se {se1:.5})",
+        sums[0] / sums[2]
+    );
+    assert!(
+        m3.abs() < 4.0 * se3 + 0.01 * level,
+        "3 bounces: {m3} off the brute-force walk (se {se3}, level {level})"
+    );
+    assert!(
+        m1 < -(6.0 * se1).max(0.02 * level),
+        "1 bounce should be darker than 3 here: {m1} (se {se1}, level {level})"
+    );
+}

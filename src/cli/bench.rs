@@ -126,7 +126,8 @@ pub fn run(cli: &Cli, a: &BenchArgs) -> Result<()> {
         Command::new(&exe)
             .arg("render")
             .arg(&a.scene)
-            .args(["--state", &a.state, "--spp", &spp, "--quiet", "--cameras"])
+            .args(["--state", &a.state, "--spp", &spp, "--quiet"])
+            .args(["--bounces", &a.max_bounces.to_string(), "--cameras"])
             .arg(&dataset_json)
             .arg("--out")
             .arg(&lf_out),

@@ -104,6 +104,10 @@ pub struct EvaluateArgs {
     /// environments), 2 (synthesis under the training states' recovered lighting).
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     pub tables: Vec<String>,
+    /// Indirect bounces of the path-traced rows (1: the paper's one-bounce estimator; up to 4,
+    /// as Cycles' max bounces); default: what stage 3 trained with (its report's settings).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=lightfuse::shade::replay::MAX_BOUNCES as i64))]
+    pub bounces: Option<u32>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -207,6 +211,12 @@ pub struct InvertArgs {
     /// (`stages::invert::lightfit`; not in the paper).
     #[arg(long)]
     pub light_fit: bool,
+    /// Indirect bounces of the training estimator, counted as Cycles' max bounces: 1 is the
+    /// paper's one-bounce estimator; more (up to 4) stop the base colour from standing in for
+    /// the light that reaches a surface after several bounces (`shade::replay`, "Deeper
+    /// vertices"; not in the paper); default: the preset's.
+    #[arg(long)]
+    pub bounces: Option<u32>,
     /// Sub-pixel positions per training pixel whose primary records are traced once and
     /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
     /// memory in proportion (the report states it).
@@ -331,6 +341,10 @@ pub struct RenderArgs {
     /// Pixel filter width (Blackman-Harris, as Cycles' default 1.5); 0 for a box over the pixel.
     #[arg(long, default_value_t = lightfuse::shade::estimator::DEFAULT_FILTER_WIDTH)]
     pub filter_width: f32,
+    /// Indirect bounces, counted as Cycles' max bounces: 1 is the paper's one-bounce
+    /// estimator; up to 4, each more a BSDF continuation shaded by next-event estimation.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=lightfuse::shade::replay::MAX_BOUNCES as i64))]
+    pub bounces: u32,
     /// Output folder: NAME.exr (R,G,B,A,Z,N.X,N.Y,N.Z,albedo.R,albedo.G,albedo.B) and NAME.png
     /// per camera, NAME the frame's file stem.
     #[arg(long)]
@@ -359,8 +373,9 @@ pub struct BenchArgs {
     /// Samples per pixel, the same for both renderers.
     #[arg(long, default_value_t = 32)]
     pub spp: u32,
-    /// Cycles' max bounces; 1 matches the one-bounce estimator (one indirect bounce).
-    #[arg(long, default_value_t = 1)]
+    /// Max bounces of both renderers: Cycles' `max_bounces`, LightFuse's `--bounces` (1 is
+    /// the paper's one-bounce estimator; LightFuse goes to 4).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=lightfuse::shade::replay::MAX_BOUNCES as i64))]
     pub max_bounces: u32,
     /// Environment file for Cycles (default: the dataset state's own).
     #[arg(long)]
@@ -805,6 +820,9 @@ fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     if a.light_fit {
         settings.light_fit = true;
     }
+    if let Some(b) = a.bounces {
+        settings.bounces = b;
+    }
     if let Some(l) = a.base_color_prior {
         if !(l.is_finite() && l >= 0.0) {
             return Err(Error::Usage(format!(
@@ -895,6 +913,7 @@ fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         dataset: a.dataset.clone(),
         work: work.clone(),
         spp: a.spp,
+        bounces: a.bounces,
         seed: a.seed,
         images: !a.no_images,
         denoise: !a.no_denoise,

@@ -64,7 +64,7 @@ pub fn run(cli: &Cli, a: &RenderArgs) -> Result<()> {
     let placed = trace.place_state(&state);
     let map = EnvMap::new(&environment, rotation);
     let eps = lightfuse::shade::estimator::self_hit_epsilon(&scene, &state);
-    let estimator = Estimator::new(&placed, &map, eps);
+    let estimator = Estimator::new(&placed, &map, eps).with_bounces(a.bounces);
     let filter = PixelFilter::new(a.filter_width);
 
     let total: u64 = views

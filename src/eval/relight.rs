@@ -62,11 +62,16 @@ use std::time::Instant;
 /// Samples per pixel of the traced rows (the paper's 32; `--spp`).
 pub const DEFAULT_SPP: u32 = 32;
 
+#[derive(Clone)]
 pub struct Options {
     pub dataset: PathBuf,
     pub work: WorkDir,
     /// Samples per pixel of the traced rows (the paper: 32).
     pub spp: u32,
+    /// Indirect bounces of the traced rows ([`Estimator::bounces`]; the paper: 1). None: the
+    /// ones stage 3 trained with ([`trained_bounces`]), so a scene is relit by the estimator
+    /// that fitted its materials.
+    pub bounces: Option<u32>,
     pub seed: u32,
     /// Write a comparison strip per (run, view) into `<work>/eval/images/`.
     pub images: bool,
@@ -265,8 +270,33 @@ struct Pictures {
 /// every (run, view) rendered and measured (`render_view`), the figures pooled into the
 /// tables, and the files written last, so a failed evaluation leaves an earlier `eval/` as it
 /// was.
+/// The indirect bounces stage 3 trained with, from its report (`settings.bounces`): 1, the
+/// paper's, when there is no report or it predates the setting. Read as plain JSON: the
+/// report's type belongs to the stages, above this layer.
+pub fn trained_bounces(report: &Path) -> u32 {
+    std::fs::read(report)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .and_then(|v| v.get("settings")?.get("bounces")?.as_u64())
+        .map_or(1, |b| b as u32)
+}
+
 pub fn evaluate(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
+    let opts = &Options {
+        bounces: Some(
+            opts.bounces
+                .unwrap_or_else(|| trained_bounces(&opts.work.invert().report())),
+        ),
+        ..opts.clone()
+    };
+    let bounces = opts.bounces.expect("resolved above");
+    if !(1..=crate::shade::replay::MAX_BOUNCES).contains(&bounces) {
+        return Err(Error::Usage(format!(
+            "--bounces: expected 1 ..= {}, found {bounces}",
+            crate::shade::replay::MAX_BOUNCES
+        )));
+    }
     if opts.spp == 0 || opts.spp > crate::shade::sobol::MAX_SAMPLES {
         return Err(Error::Usage(format!(
             "--spp: expected 1 ..= {}, found {}",
@@ -388,6 +418,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         relightable: input.relit_file.display().to_string(),
         baked: input.baked_file.display().to_string(),
         spp: opts.spp,
+        bounces,
         seed: opts.seed,
         denoise: if opts.denoise { DENOISER } else { "none" }.into(),
         selection: opts.selection,
@@ -548,7 +579,9 @@ fn render_view(
         &[Strategy::Full]
     };
     for &strategy in strategies {
-        let est = Estimator::new(&state.placed, view.env, state.eps).with_strategy(strategy);
+        let est = Estimator::new(&state.placed, view.env, state.eps)
+            .with_strategy(strategy)
+            .with_bounces(opts.bounces.expect("resolved by evaluate"));
         let (mut images, n) = p.shade(&est, scales);
         rays += n;
         if opts.denoise {

@@ -129,7 +129,7 @@ fn image_figures(
 
 /// Stage 3's own figures for its report: every training state's training and held-out views
 /// rendered with the state's *recovered* environment against the captures (every `stride`-th
-/// pixel, `spp` samples), the recovered environment against the dataset's, and the base colour
+/// pixel, `spp` samples, `bounces` indirect bounces), the recovered environment against the dataset's, and the base colour
 /// and per-object metallic and roughness against the dataset's truth (evaluation only: none of
 /// it feeds training). `names[j]` is the scene's state of training state `dataset_states[j]`.
 #[allow(clippy::too_many_arguments)]
@@ -142,6 +142,7 @@ pub fn measure(
     held: &[Vec<Observation>],
     spp: u32,
     stride: u32,
+    bounces: u32,
 ) -> Result<Figures> {
     let trace = TraceScene::new(scene);
     let mut gathered = Gathered::default();
@@ -153,7 +154,8 @@ pub fn measure(
         let env_ref = state.environment.expect("set above");
         let recovered = &scene.environments[env_ref.index];
         let map = EnvMap::new(recovered, env_ref.rotation_deg);
-        let est = Estimator::new(&placed, &map, self_hit_epsilon(scene, state));
+        let est =
+            Estimator::new(&placed, &map, self_hit_epsilon(scene, state)).with_bounces(bounces);
         let t: Vec<&Observation> = train[j].iter().collect();
         let hd: Vec<&Observation> = held[j].iter().collect();
         let albedo = t

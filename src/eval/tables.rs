@@ -186,6 +186,9 @@ pub struct Report {
     pub relightable: String,
     pub baked: String,
     pub spp: u32,
+    /// Indirect bounces of the traced rows (reports written before the field: the paper's 1).
+    #[serde(default = "one_bounce")]
+    pub bounces: u32,
     pub seed: u32,
     /// What denoised the traced rows: [`DENOISER`], or "none".
     pub denoise: String,
@@ -358,6 +361,10 @@ pub fn markdown(r: &Report) -> String {
         ));
     }
     s
+}
+
+fn one_bounce() -> u32 {
+    1
 }
 
 #[cfg(test)]

@@ -163,6 +163,49 @@ pub(crate) fn test_pattern(w: usize, h: usize) -> Environment {
     Environment::new("p", w, h, px)
 }
 
+/// A lat-long map of `width` columns from the texels some view saw (`texels`, row-major; None:
+/// unseen): each unseen texel takes the mean of its row's seen texels, rows with none the
+/// nearest such row's (the upper one on a tie). None when no texel was seen. The one home of
+/// this guess: stage 3 starts its loop from it (`stages::invert::train::initial_environment`)
+/// and its light fit holds the texels its data barely reach to it
+/// (`stages::invert::lightfit::fill`).
+pub fn fill_by_rows(width: usize, texels: &[Option<[f64; 3]>]) -> Option<Vec<[f64; 3]>> {
+    let height = texels.len() / width;
+    let rows: Vec<Option<[f64; 3]>> = texels
+        .chunks(width)
+        .map(|row| {
+            let (mut s, mut n) = ([0.0f64; 3], 0u32);
+            for v in row.iter().flatten() {
+                for c in 0..3 {
+                    s[c] += v[c];
+                }
+                n += 1;
+            }
+            (n > 0).then(|| s.map(|v| v / n as f64))
+        })
+        .collect();
+    let seen: Vec<usize> = (0..height).filter(|&y| rows[y].is_some()).collect();
+    if seen.is_empty() {
+        return None;
+    }
+    Some(
+        texels
+            .iter()
+            .enumerate()
+            .map(|(j, v)| {
+                let y = j / width;
+                v.or(rows[y]).unwrap_or_else(|| {
+                    let near = *seen
+                        .iter()
+                        .min_by_key(|&&r| r.abs_diff(y))
+                        .expect("a seen row");
+                    rows[near].expect("seen row")
+                })
+            })
+            .collect(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

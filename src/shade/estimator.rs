@@ -41,7 +41,7 @@
 
 use super::brdf;
 use super::envmap::EnvMap;
-use super::replay::{Bounce, PathReplay, Term};
+use super::replay::{Bounce, PathReplay, Term, MAX_BOUNCES};
 use super::sobol::Sampler;
 use crate::scene::Material;
 use crate::scene::{Camera, Scene, State};
@@ -64,8 +64,11 @@ pub mod dim {
     pub const LOBE: u32 = 4;
     pub const BSDF: u32 = 5;
     pub const SECONDARY_ENV: [u32; 2] = [7, 9];
-    /// Dimensions used per path sample.
+    /// Dimensions used per path sample by the paper's one-bounce estimator.
     pub const COUNT: u32 = 11;
+    /// Dimensions each vertex past the secondary record draws, from `COUNT + PER_DEEPER · j`:
+    /// lobe choice, BSDF direction (2), next-event direction at the record met (2).
+    pub const PER_DEEPER: u32 = 5;
 }
 
 /// Secondary-ray offset per unit of median surfel scale (see the module docs).
@@ -151,6 +154,11 @@ pub struct Estimator<'a> {
     /// Offset of secondary-ray origins along the normal, and their `t_min` (world units).
     pub eps: f32,
     pub strategy: Strategy,
+    /// Indirect bounces ([`Strategy::Full`] only): 1 is the paper's one-bounce estimator;
+    /// each more continues the path from the last record by one BSDF sample and shades the
+    /// record it meets by one environment next-event sample (module doc, "Deeper vertices").
+    /// Cycles' `max_bounces` counts the same way.
+    pub bounces: u32,
 }
 
 /// Sample `index` of `sampler`: the Sobol dimensions one path sample draws ([`dim`]).
@@ -226,12 +234,22 @@ impl<'a> Estimator<'a> {
             env,
             eps,
             strategy: Strategy::Full,
+            bounces: 1,
         }
     }
 
     /// The same estimator with other sampling strategies.
     pub fn with_strategy(self, strategy: Strategy) -> Self {
         Estimator { strategy, ..self }
+    }
+
+    /// The same estimator with `bounces` indirect bounces (1 to [`MAX_BOUNCES`]).
+    pub fn with_bounces(self, bounces: u32) -> Self {
+        assert!(
+            (1..=MAX_BOUNCES).contains(&bounces),
+            "bounces: 1 to {MAX_BOUNCES}, found {bounces}"
+        );
+        Estimator { bounces, ..self }
     }
 
     /// One path sample along the camera ray `origin + t dir` (`dir` unit length), drawing
@@ -323,6 +341,7 @@ impl<'a> Estimator<'a> {
             scale: 1.0 - a,
             primary: None,
             secondary: None,
+            tail: [1.0; 3],
             env_dir: d,
         });
         if a > 0.0 {
@@ -378,6 +397,7 @@ impl<'a> Estimator<'a> {
                 scale: a * scale,
                 primary: Some(b),
                 secondary: None,
+                tail: [1.0; 3],
                 env_dir: b.wi,
             });
         }
@@ -415,6 +435,7 @@ impl<'a> Estimator<'a> {
                 scale: a * escaped * w / bs.pdf,
                 primary: Some(first),
                 secondary: None,
+                tail: [1.0; 3],
                 env_dir: bs.wi,
             });
         }
@@ -434,10 +455,102 @@ impl<'a> Estimator<'a> {
                         scale: a * a2 / bs.pdf * scale / n,
                         primary: Some(first),
                         secondary: Some(b2),
+                        tail: [1.0; 3],
                         env_dir: b2.wi,
                     });
                 }
             }
+            if self.bounces > 1 {
+                self.shade_deeper(&s2, -bs.wi, a * a2 / bs.pdf, first, draw, p);
+            }
+        }
+    }
+
+    /// The vertices past the secondary record `s2` (reached along −`wo2`, with the frozen
+    /// prefix `scale` and the primary factor `first`): `bounces − 1` more BSDF continuations,
+    /// each record met shaded by one environment next-event sample with visibility (no MIS,
+    /// as at the secondary record: escaped continuations are not counted, the next-event
+    /// samples estimate the direct light at every vertex). The first continuation's factor at
+    /// `s2` is the term's secondary factor (its material differentiated); the factors past it
+    /// go into the frozen tail.
+    fn shade_deeper(
+        &self,
+        s2: &Shading,
+        wo2: Vec3,
+        scale: f32,
+        first: Bounce,
+        draw: Draw,
+        p: &mut PathReplay,
+    ) {
+        let mut at = Shading {
+            x: s2.x,
+            n: s2.n,
+            material: s2.material,
+        };
+        let mut wo = wo2;
+        let mut scale = scale;
+        let mut second: Option<Bounce> = None;
+        let mut tail = [1.0f32; 3];
+        for j in 0..self.bounces - 1 {
+            let base = dim::COUNT + dim::PER_DEEPER * j;
+            let Some(bs) = brdf::sample(
+                at.n,
+                wo,
+                &at.material,
+                draw.get_2d(base + 1),
+                draw.get(base),
+            ) else {
+                return;
+            };
+            let f = brdf::eval_f_cos(at.n, wo, bs.wi, &at.material);
+            match second {
+                None => {
+                    second = Some(Bounce {
+                        n: at.n,
+                        wo,
+                        wi: bs.wi,
+                        f,
+                    })
+                }
+                Some(_) => {
+                    for c in 0..3 {
+                        tail[c] *= f[c];
+                    }
+                }
+            }
+            let o = at.x + self.eps * at.n;
+            p.rays += 1;
+            let rec = self
+                .scene
+                .composite(o.to_array(), bs.wi.to_array(), self.eps, f32::INFINITY);
+            let alpha = if rec.hits == 0 {
+                0.0
+            } else {
+                rec.alpha.max(0.0)
+            };
+            if alpha <= 0.0 {
+                return;
+            }
+            let Some(next) = Shading::of(&rec) else {
+                return;
+            };
+            scale *= alpha / bs.pdf;
+            if !scale.is_finite() || scale == 0.0 {
+                return;
+            }
+            if let Some((b, s)) =
+                self.env_nee(&next, -bs.wi, draw.get_2d(base + 3), false, &mut p.rays)
+            {
+                p.push(Term {
+                    scale: scale * s,
+                    primary: Some(first),
+                    secondary: second,
+                    tail: [0, 1, 2].map(|c| tail[c] * b.f[c]),
+                    env_dir: b.wi,
+                });
+            }
+            wo = -bs.wi;
+            at = next;
         }
     }
 
@@ -459,6 +572,7 @@ impl<'a> Estimator<'a> {
                         f,
                     }),
                     secondary: None,
+                    tail: [1.0; 3],
                     env_dir: es.dir,
                 });
             }
@@ -476,6 +590,7 @@ impl<'a> Estimator<'a> {
                     f: brdf::eval_f_cos(s.n, wo, bs.wi, &s.material),
                 }),
                 secondary: None,
+                tail: [1.0; 3],
                 env_dir: bs.wi,
             });
         }
@@ -521,6 +636,7 @@ impl<'a> Estimator<'a> {
             scale: a * (1.0 - a2) / pdf,
             primary: Some(first),
             secondary: None,
+            tail: [1.0; 3],
             env_dir: wi,
         });
         if a2 <= 0.0 {
@@ -549,6 +665,7 @@ impl<'a> Estimator<'a> {
                     wi: wi2,
                     f: f2,
                 }),
+                tail: [1.0; 3],
                 env_dir: wi2,
             });
         }

@@ -172,6 +172,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                 dataset: ds.clone(),
                 work: w.clone(),
                 spp: crate::eval::relight::DEFAULT_SPP,
+                bounces: None,
                 seed: 0,
                 images: true,
                 denoise: opts.denoise,

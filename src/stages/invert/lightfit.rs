@@ -46,8 +46,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::cache::{PrimaryCache, TrainState};
-use super::train::fill_by_rows;
-use crate::scene::environment::texel_solid_angle;
+use crate::scene::environment::{fill_by_rows, texel_solid_angle};
 use crate::scene::synthetic::SplitMix;
 use crate::scene::{Environment, Surfels};
 use crate::shade::envmap::{direction_to_uv, uv_to_direction};

@@ -312,6 +312,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
         &held,
         opts.eval_spp,
         opts.eval_stride,
+        opts.settings.bounces,
     )?;
     let report = Report {
         states: figures.states,

@@ -39,6 +39,7 @@ use crate::scene::synthetic::SplitMix;
 use crate::scene::{Environment, Surfels};
 use crate::shade::envmap::{direction_to_uv, EnvMap};
 use crate::shade::estimator::{Estimator, Strategy};
+use crate::shade::replay::MAX_BOUNCES;
 use crate::shade::Sampler;
 use crate::trace::{
     scatter_material_grad, MaterialGrads, RecordGrad, SurfaceRecord, TraceRay, TraceScene,
@@ -204,6 +205,10 @@ pub struct Settings {
     /// paper's); evaluation always renders with the paper's.
     #[serde(default)]
     pub estimator: Strategy,
+    /// Indirect bounces of the training estimator ([`Estimator::bounces`]; 1 is the paper's,
+    /// old checkpoints and reports). The stage's own measurement renders with the same.
+    #[serde(default = "one")]
+    pub bounces: u32,
     /// The image term (old checkpoints and reports: the paper's L1).
     #[serde(default)]
     pub loss: Loss,
@@ -270,6 +275,12 @@ impl Settings {
     /// Settings no run can use, as the option that sets them would say it.
     pub fn check(&self) -> crate::Result<()> {
         let (w, h) = self.env_size();
+        if !(1..=MAX_BOUNCES).contains(&self.bounces) {
+            return Err(crate::Error::Usage(format!(
+                "--bounces: expected 1 to {MAX_BOUNCES} indirect bounces, found {}",
+                self.bounces
+            )));
+        }
         if pyramid::coarse_sizes(w, h, self.env_levels).is_none() {
             return Err(crate::Error::Usage(format!(
                 "--env-levels: expected 1 or more levels, each halving the {w}×{h} environment \
@@ -299,6 +310,7 @@ impl Settings {
             spp: 8,
             spp_schedule: SppSchedule::Paper,
             estimator: Strategy::Full,
+            bounces: 1,
             loss: Loss::L1,
             env_update: EnvUpdate::Texel,
             env_width: 256,
@@ -914,7 +926,9 @@ impl Inverter {
         let placed = trace.place(&states[k].transforms);
         let env = self.environment(k, "");
         let map = EnvMap::new(&env, 0.0);
-        let est = Estimator::new(&placed, &map, states[k].eps).with_strategy(s.estimator);
+        let est = Estimator::new(&placed, &map, states[k].eps)
+            .with_strategy(s.estimator)
+            .with_bounces(s.bounces);
         let passes = Passes {
             estimator: &est,
             env: &map,
@@ -1106,54 +1120,12 @@ pub fn initial_environment(views: &[&Observation], width: usize, height: usize) 
     let texels: Vec<Option<[f64; 3]>> = (0..width * height)
         .map(|j| (count[j] > 0).then(|| sum[j].map(|v| v / count[j] as f64)))
         .collect();
-    let px = fill_by_rows(width, &texels)
+    let px = crate::scene::environment::fill_by_rows(width, &texels)
         .unwrap_or_else(|| vec![mean_all; width * height])
         .into_iter()
         .map(|v| v.map(|x| (x as f32).max(1e-4)))
         .collect();
     Environment::new("initial", width, height, px)
-}
-
-/// A lat-long map of `width` columns from the texels some view saw (`texels`, row-major; None:
-/// unseen): each unseen texel takes the mean of its row's seen texels, rows with none the
-/// nearest such row's (the upper one on a tie). None when no texel was seen. The one home of
-/// this guess: [`initial_environment`] starts the loop from it and
-/// [`super::lightfit::fill`] holds the fit's unconstrained texels to it.
-pub fn fill_by_rows(width: usize, texels: &[Option<[f64; 3]>]) -> Option<Vec<[f64; 3]>> {
-    let height = texels.len() / width;
-    let rows: Vec<Option<[f64; 3]>> = texels
-        .chunks(width)
-        .map(|row| {
-            let (mut s, mut n) = ([0.0f64; 3], 0u32);
-            for v in row.iter().flatten() {
-                for c in 0..3 {
-                    s[c] += v[c];
-                }
-                n += 1;
-            }
-            (n > 0).then(|| s.map(|v| v / n as f64))
-        })
-        .collect();
-    let seen: Vec<usize> = (0..height).filter(|&y| rows[y].is_some()).collect();
-    if seen.is_empty() {
-        return None;
-    }
-    Some(
-        texels
-            .iter()
-            .enumerate()
-            .map(|(j, v)| {
-                let y = j / width;
-                v.or(rows[y]).unwrap_or_else(|| {
-                    let near = *seen
-                        .iter()
-                        .min_by_key(|&&r| r.abs_diff(y))
-                        .expect("a seen row");
-                    rows[near].expect("seen row")
-                })
-            })
-            .collect(),
-    )
 }
 
 #[cfg(test)]
