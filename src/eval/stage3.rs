@@ -129,9 +129,10 @@ fn image_figures(
 
 /// Stage 3's own figures for its report: every training state's training and held-out views
 /// rendered with the state's *recovered* environment against the captures (every `stride`-th
-/// pixel, `spp` samples, `bounces` indirect bounces), the recovered environment against the dataset's, and the base colour
-/// and per-object metallic and roughness against the dataset's truth (evaluation only: none of
-/// it feeds training). `names[j]` is the scene's state of training state `dataset_states[j]`.
+/// pixel, `spp` samples, `bounces` indirect bounces), the recovered environment against the
+/// dataset's, and the base colour and per-object metallic and roughness against the dataset's
+/// truth (evaluation only: none of it feeds training). `names[j]` is the scene's state of
+/// training state `dataset_states[j]`.
 #[allow(clippy::too_many_arguments)]
 pub fn measure(
     scene: &Scene,

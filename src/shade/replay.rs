@@ -1,6 +1,7 @@
 //! Path replay (Vicini, Speierer and Jakob 2021, "Path Replay Backpropagation"), for the
-//! one-bounce estimator (and its deeper vertices, below): what one path sample decided, kept so that its radiance can be
-//! re-evaluated with other materials and environment texels, and differentiated.
+//! one-bounce estimator and its deeper vertices (below): what one path sample decided, kept so
+//! that its radiance can be re-evaluated with other materials and environment texels, and
+//! differentiated.
 //!
 //! # A path sample as a sum of terms
 //!
@@ -111,9 +112,9 @@ pub struct Term {
     pub primary: Option<Bounce>,
     /// The factor at the secondary record (only together with `primary`).
     pub secondary: Option<Bounce>,
-    /// The frozen product of the factors past the secondary record, each f·cos θi over its
-    /// density and times its coverage (1 for the paper's terms). Its materials are detached:
-    /// see the module doc's "Deeper vertices".
+    /// The frozen product of the f·cos θi factors past the secondary record (1 for the
+    /// paper's terms; their densities and coverages are in `scale`). Its materials are
+    /// detached: see the module doc's "Deeper vertices".
     pub tail: [f32; 3],
     /// Where the environment is looked up (world direction).
     pub env_dir: Vec3,
