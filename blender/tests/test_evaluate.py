@@ -156,3 +156,6 @@ def test_evaluate_bad_input_is_one_clear_error_and_writes_nothing(tiny_dataset, 
         assert p.returncode == 2 and what in p.stderr and "panicked" not in p.stderr, p.stderr
     p = run("run", ds, "-o", tmp_path / "w3", "--loss", "l3")
     assert p.returncode == 2 and "--loss" in p.stderr and not (tmp_path / "w3").exists(), p.stderr
+    # Stage 3's options reach `run` as `invert` has them, checked before any stage runs.
+    p = run("run", ds, "-o", tmp_path / "w4", "--light-fit", "--bounces", "9")
+    assert p.returncode == 2 and "--bounces" in p.stderr and not (tmp_path / "w4").exists(), p.stderr

@@ -8,11 +8,16 @@ mod render;
 use clap::{Parser, Subcommand};
 use lightfuse::error::{Error, Result};
 use lightfuse::io::work::WorkDir;
-use lightfuse::shade::estimator::Strategy;
-use lightfuse::stages::invert::train::{EnvUpdate, Loss, SppSchedule};
+use lightfuse::stages::invert::train::Overrides;
 use lightfuse::stages::reconstruct::train::PoseRefinement;
 use lightfuse::stages::Preset;
 use std::path::PathBuf;
+
+/// The range of every `--bounces` option, as the library bounds it
+/// (`shade::replay::check_bounces`, which `lightfuse invert` and `run` go through).
+fn bounces_range() -> clap::builder::RangedI64ValueParser<u32> {
+    clap::value_parser!(u32).range(1..=lightfuse::shade::replay::MAX_BOUNCES as i64)
+}
 
 #[derive(Parser, Debug)]
 #[command(
@@ -106,7 +111,7 @@ pub struct EvaluateArgs {
     pub tables: Vec<String>,
     /// Indirect bounces of the path-traced rows (1: the paper's one-bounce estimator; up to 4,
     /// as Cycles' max bounces); default: what stage 3 trained with (its report's settings).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=lightfuse::shade::replay::MAX_BOUNCES as i64))]
+    #[arg(long, value_parser = bounces_range())]
     pub bounces: Option<u32>,
 }
 
@@ -126,10 +131,10 @@ pub struct RunArgs {
     /// Evaluate without Open Image Denoise (the paper denoised).
     #[arg(long)]
     pub no_denoise: bool,
-    /// Stage 3's image term: l1 (the paper's), weighted-l2 or bright-l1 (see `lightfuse
-    /// invert`); default: the preset's.
-    #[arg(long, value_enum)]
-    pub loss: Option<Loss>,
+    /// Stage 3's options, as `lightfuse invert`'s (each absent one: the preset's); a stage-3
+    /// output trained with other settings is out of date.
+    #[command(flatten)]
+    pub stage3: Overrides,
 }
 
 #[derive(clap::Args, Debug)]
@@ -174,54 +179,9 @@ pub struct InvertArgs {
     /// 16,384 pixels, 8/16/32 spp).
     #[arg(long, value_enum, default_value_t = Preset::Fast)]
     pub preset: Preset,
-    /// Iterations (default: the preset's); the stage boundaries stay where the preset puts them.
-    #[arg(long)]
-    pub iterations: Option<u32>,
-    /// How samples per pixel grow: paper (x1, x2 from half, x4 from 80%), fixed8 (x1),
-    /// max16 (x1, x2 from half) - the paper's Table 4.
-    #[arg(long, value_enum, default_value_t = SppSchedule::Paper)]
-    pub spp_schedule: SppSchedule,
-    /// Training estimator: full (environment next-event estimation and a BSDF continuation
-    /// with MIS, the paper's) or naive (cosine-hemisphere continuations only, no next-event
-    /// estimation, no MIS: the paper's Table 4 baseline).
-    #[arg(long, value_enum, default_value_t = Strategy::Full)]
-    pub estimator: Strategy,
-    /// Image term: l1 (the paper's), weighted-l2 (unbiased at low spp) or bright-l1 (lit
-    /// pixels weigh more: keeps moved shadows out of the base colour;
-    /// `stages::invert::train::Loss`); default: the preset's.
-    #[arg(long, value_enum)]
-    pub loss: Option<Loss>,
-    /// How the environments' Adam steps are normalised: texel (per texel, the paper's) or
-    /// shared (one second moment per map: bright, well-constrained directions such as a sun
-    /// move further than noise; `stages::invert::train::EnvUpdate`); default: the preset's.
-    #[arg(long, value_enum)]
-    pub env_update: Option<EnvUpdate>,
-    /// The environments as sums of maps at halving resolutions (5 on 256x128: from 16x8), so
-    /// directions few samples reach move with their neighbourhood rather than alone on noise
-    /// (`optim::pyramid`; not in the paper); 1: one value per texel; default: the preset's.
-    #[arg(long)]
-    pub env_levels: Option<u32>,
-    /// λ of the base-colour prior (neighbours of one chromaticity in stage 1's colours drawn
-    /// to one base colour, so shadows are not painted: `stages::invert::prior`; not in the
-    /// paper); 0 turns it off; default: the preset's.
-    #[arg(long)]
-    pub base_color_prior: Option<f32>,
-    /// Start stage 3 from a linear fit of each state's lighting to the shadows the geometry
-    /// casts (and one base colour per surface group) instead of the sky seen and grey
-    /// (`stages::invert::lightfit`; not in the paper).
-    #[arg(long)]
-    pub light_fit: bool,
-    /// Indirect bounces of the training estimator, counted as Cycles' max bounces: 1 is the
-    /// paper's one-bounce estimator; more (up to 4) stop the base colour from standing in for
-    /// the light that reaches a surface after several bounces (`shade::replay`, "Deeper
-    /// vertices"; not in the paper); default: the preset's.
-    #[arg(long)]
-    pub bounces: Option<u32>,
-    /// Sub-pixel positions per training pixel whose primary records are traced once and
-    /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
-    /// memory in proportion (the report states it).
-    #[arg(long)]
-    pub primary_jitters: Option<u32>,
+    /// Stage 3's options (each absent one: the preset's).
+    #[command(flatten)]
+    pub stage3: Overrides,
     /// Evaluation: samples per pixel, and every N-th pixel in x and y of each view.
     #[arg(long, default_value_t = lightfuse::stages::invert::run::DEFAULT_EVAL_SPP)]
     pub eval_spp: u32,
@@ -230,8 +190,6 @@ pub struct InvertArgs {
     /// Continue from <work>/invert/checkpoint.json if it is there.
     #[arg(long)]
     pub resume: bool,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
 }
 
 #[derive(clap::Args, Debug)]
@@ -343,7 +301,7 @@ pub struct RenderArgs {
     pub filter_width: f32,
     /// Indirect bounces, counted as Cycles' max bounces: 1 is the paper's one-bounce
     /// estimator; up to 4, each more a BSDF continuation shaded by next-event estimation.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=lightfuse::shade::replay::MAX_BOUNCES as i64))]
+    #[arg(long, default_value_t = 1, value_parser = bounces_range())]
     pub bounces: u32,
     /// Output folder: NAME.exr (R,G,B,A,Z,N.X,N.Y,N.Z,albedo.R,albedo.G,albedo.B) and NAME.png
     /// per camera, NAME the frame's file stem.
@@ -375,7 +333,7 @@ pub struct BenchArgs {
     pub spp: u32,
     /// Max bounces of both renderers: Cycles' `max_bounces`, LightFuse's `--bounces` (1 is
     /// the paper's one-bounce estimator; LightFuse goes to 4).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=lightfuse::shade::replay::MAX_BOUNCES as i64))]
+    #[arg(long, default_value_t = 1, value_parser = bounces_range())]
     pub max_bounces: u32,
     /// Environment file for Cycles (default: the dataset state's own).
     #[arg(long)]
@@ -801,48 +759,13 @@ fn refine(cli: &Cli, a: &RefineArgs) -> Result<()> {
 
 fn invert(cli: &Cli, a: &InvertArgs) -> Result<()> {
     use lightfuse::stages::invert::{self, Settings};
-    let mut settings = a.preset.pick(Settings::fast, Settings::paper);
-    if let Some(n) = a.iterations {
-        settings.iterations = n;
-    }
-    settings.seed = a.seed;
-    settings.spp_schedule = a.spp_schedule;
-    settings.estimator = a.estimator;
-    if let Some(l) = a.loss {
-        settings.loss = l;
-    }
-    if let Some(u) = a.env_update {
-        settings.env_update = u;
-    }
-    if let Some(l) = a.env_levels {
-        settings.env_levels = l;
-    }
-    if a.light_fit {
-        settings.light_fit = true;
-    }
-    if let Some(b) = a.bounces {
-        settings.bounces = b;
-    }
-    if let Some(l) = a.base_color_prior {
-        if !(l.is_finite() && l >= 0.0) {
-            return Err(Error::Usage(format!(
-                "--base-color-prior: expected a number ≥ 0, found {l}"
-            )));
-        }
-        settings.lambda_base_color = l;
-    }
+    let settings = a
+        .stage3
+        .apply(a.preset.pick(Settings::fast, Settings::paper))?;
     if a.eval_spp == 0 || a.eval_stride == 0 {
         return Err(Error::Usage(
             "--eval-spp and --eval-stride: expected at least 1".into(),
         ));
-    }
-    if let Some(j) = a.primary_jitters {
-        if j == 0 {
-            return Err(Error::Usage(
-                "--primary-jitters: expected at least 1".into(),
-            ));
-        }
-        settings.primary_jitters = j;
     }
     let report = invert::invert(&invert::Options {
         dataset: a.dataset.clone(),
@@ -946,7 +869,7 @@ fn run_all(cli: &Cli, a: &RunArgs) -> Result<()> {
         preset: a.preset,
         force: a.force,
         denoise: !a.no_denoise,
-        loss: a.loss,
+        invert: a.stage3.clone(),
         quiet: cli.quiet || cli.json,
     })?;
     let eval_md = work.eval_md();

@@ -53,6 +53,7 @@ use crate::scene::{Environment, Layout, Scene, State};
 use crate::shade::denoise::denoise_render;
 use crate::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, Strategy};
 use crate::shade::render::{environment_image, Aovs, Primaries};
+use crate::shade::replay::{check_bounces, MAX_BOUNCES};
 use crate::shade::EnvMap;
 use crate::trace::TraceScene;
 use std::collections::BTreeMap;
@@ -265,38 +266,50 @@ struct Pictures {
     assets: html::Assets,
 }
 
+/// The indirect bounces stage 3 trained with, from its report (`settings.bounces`): 1, the
+/// paper's, when there is no report or it predates the setting; an error naming the report
+/// when it cannot be read or holds a value no estimator takes. Read as plain JSON: the
+/// report's type belongs to the stages, above this layer.
+pub fn trained_bounces(report: &Path) -> Result<u32> {
+    let bytes = match std::fs::read(report) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(1),
+        Err(e) => return Err(Error::io(report, e)),
+    };
+    let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| {
+        Error::invalid(
+            report,
+            "report",
+            format!("expected stage 3's report (JSON): {e}"),
+        )
+    })?;
+    match v.get("settings").and_then(|s| s.get("bounces")) {
+        None => Ok(1),
+        Some(b) => b
+            .as_u64()
+            .and_then(|b| u32::try_from(b).ok())
+            .filter(|&b| check_bounces(b, "").is_ok())
+            .ok_or_else(|| {
+                Error::invalid(
+                    report,
+                    "settings.bounces",
+                    format!("expected 1 to {MAX_BOUNCES} indirect bounces, found {b}"),
+                )
+            }),
+    }
+}
+
 /// Runs the evaluation and writes `<work>/eval/{eval.json, eval.md, report.html}` (and the
 /// images: [`crate::eval::html`]): the inputs loaded and checked, the median albedo ratio,
 /// every (run, view) rendered and measured (`render_view`), the figures pooled into the
 /// tables, and the files written last, so a failed evaluation leaves an earlier `eval/` as it
 /// was.
-/// The indirect bounces stage 3 trained with, from its report (`settings.bounces`): 1, the
-/// paper's, when there is no report or it predates the setting. Read as plain JSON: the
-/// report's type belongs to the stages, above this layer.
-pub fn trained_bounces(report: &Path) -> u32 {
-    std::fs::read(report)
-        .ok()
-        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .and_then(|v| v.get("settings")?.get("bounces")?.as_u64())
-        .map_or(1, |b| b as u32)
-}
-
 pub fn evaluate(opts: &Options) -> Result<Report> {
     let t0 = Instant::now();
-    let opts = &Options {
-        bounces: Some(
-            opts.bounces
-                .unwrap_or_else(|| trained_bounces(&opts.work.invert().report())),
-        ),
-        ..opts.clone()
+    let bounces = match opts.bounces {
+        Some(b) => check_bounces(b, "--bounces")?,
+        None => trained_bounces(&opts.work.invert().report())?,
     };
-    let bounces = opts.bounces.expect("resolved above");
-    if !(1..=crate::shade::replay::MAX_BOUNCES).contains(&bounces) {
-        return Err(Error::Usage(format!(
-            "--bounces: expected 1 ..= {}, found {bounces}",
-            crate::shade::replay::MAX_BOUNCES
-        )));
-    }
     if opts.spp == 0 || opts.spp > crate::shade::sobol::MAX_SAMPLES {
         return Err(Error::Usage(format!(
             "--spp: expected 1 ..= {}, found {}",
@@ -381,8 +394,16 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                     primaries: p,
                     aovs,
                 };
-                let (figure, n) =
-                    render_view(opts, d, &state, &view, &scales, &out_dir, &mut pictures)?;
+                let (figure, n) = render_view(
+                    opts,
+                    bounces,
+                    d,
+                    &state,
+                    &view,
+                    &scales,
+                    &out_dir,
+                    &mut pictures,
+                )?;
                 rays += n;
                 let status = format!(
                     "{} {} view {v}: LightFuse {:.1} dB",
@@ -557,8 +578,10 @@ struct ViewToRender<'a> {
 /// shared primaries, raw and rescaled, denoised if asked; Baked splatted over the environment),
 /// measures each against the Cycles frame, and adds its comparison strip to `pictures`.
 /// Returns the view's figures and the rays traced.
+#[allow(clippy::too_many_arguments)]
 fn render_view(
     opts: &Options,
+    bounces: u32,
     d: &Dataset,
     state: &TestState,
     view: &ViewToRender,
@@ -581,7 +604,7 @@ fn render_view(
     for &strategy in strategies {
         let est = Estimator::new(&state.placed, view.env, state.eps)
             .with_strategy(strategy)
-            .with_bounces(opts.bounces.expect("resolved by evaluate"));
+            .with_bounces(bounces);
         let (mut images, n) = p.shade(&est, scales);
         rays += n;
         if opts.denoise {

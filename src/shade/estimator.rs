@@ -201,6 +201,7 @@ fn add_scaled(acc: &mut [f32; 3], v: [f32; 3], s: f32) {
 }
 
 /// A record's shading point: mean position, unit normal facing the ray, mean material.
+#[derive(Clone, Copy)]
 struct Shading {
     x: Vec3,
     n: Vec3,
@@ -482,11 +483,7 @@ impl<'a> Estimator<'a> {
         draw: Draw,
         p: &mut PathReplay,
     ) {
-        let mut at = Shading {
-            x: s2.x,
-            n: s2.n,
-            material: s2.material,
-        };
+        let mut at = *s2;
         let mut wo = wo2;
         let mut scale = scale;
         let mut second: Option<Bounce> = None;

@@ -82,6 +82,18 @@ use glam::Vec3;
 /// the paper's estimator takes one).
 pub const MAX_BOUNCES: u32 = 4;
 
+/// `bounces` if an estimator can take it (1 to [`MAX_BOUNCES`]), else a usage error naming
+/// `option`, where it came from. The one check of the bound for every input that sets it.
+pub fn check_bounces(bounces: u32, option: &str) -> crate::Result<u32> {
+    if (1..=MAX_BOUNCES).contains(&bounces) {
+        Ok(bounces)
+    } else {
+        Err(crate::Error::Usage(format!(
+            "{option}: expected 1 to {MAX_BOUNCES} indirect bounces, found {bounces}"
+        )))
+    }
+}
+
 /// Terms one path sample has at most (see the module table): the paper's five, and one
 /// next-event term per vertex past the secondary record.
 pub const MAX_TERMS: usize = 5 + (MAX_BOUNCES as usize - 1);

@@ -8,6 +8,8 @@
 use crate::error::{Error, Result};
 use crate::io::work::WorkDir;
 use crate::progress::say;
+use crate::stages::invert::train::Overrides;
+use crate::stages::invert::Settings;
 use crate::stages::Preset;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -23,9 +25,9 @@ pub struct Options {
     /// Denoise the evaluation's traced rows (see [`crate::eval::relight::Options::denoise`]);
     /// an `eval.json` made with the other setting is out of date.
     pub denoise: bool,
-    /// Stage 3's image term (default: the preset's); a stage-3 output trained with another is
-    /// out of date.
-    pub loss: Option<crate::stages::invert::train::Loss>,
+    /// Stage 3's options on top of the preset's ([`Overrides`]); a stage-3 output trained with
+    /// other settings is out of date.
+    pub invert: Overrides,
     pub quiet: bool,
 }
 
@@ -81,20 +83,15 @@ fn eval_settings_match(eval_json: &Path, denoise: bool) -> bool {
     denoised == Some(denoise) && complete
 }
 
-/// False when stage 3's report was trained with another image term than `loss` (reports
-/// written before the field: L1, the only one there was).
-fn invert_settings_match(report_json: &Path, loss: crate::stages::invert::train::Loss) -> bool {
+/// False when stage 3's report was trained with other settings than `settings` (every field:
+/// a report without one of the later fields was trained with its default, as its checkpoint
+/// would be read back), or cannot be read.
+fn invert_settings_match(report_json: &Path, settings: &Settings) -> bool {
     std::fs::read(report_json)
         .ok()
         .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .is_some_and(|v| {
-            let recorded = v.get("settings").and_then(|s| s.get("loss")).cloned();
-            match recorded {
-                None => loss == crate::stages::invert::train::Loss::L1,
-                Some(l) => serde_json::from_value::<crate::stages::invert::train::Loss>(l)
-                    .is_ok_and(|l| l == loss),
-            }
-        })
+        .and_then(|v| serde_json::from_value::<Settings>(v.get("settings")?.clone()).ok())
+        .is_some_and(|recorded| recorded == *settings)
 }
 
 /// Runs stages 1–3 and the evaluation; returns what each step did.
@@ -103,6 +100,8 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
         // Checked here too, so that the run fails before the stages rather than after them.
         crate::shade::denoise::require("or pass --no-denoise to evaluate undenoised")?;
     }
+    // Checked before the stages too, so that a bad option fails before hours of stage 1.
+    let invert_settings = invert_settings(opts)?;
     let dataset = crate::io::dataset::Dataset::read(&opts.dataset)?;
     crate::eval::relight::check_dataset(&dataset)?;
     let mut runner = Runner::new(opts)?;
@@ -154,7 +153,7 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
                 dataset: ds.clone(),
                 work: w.clone(),
                 scene: None,
-                settings: invert_settings(opts),
+                settings: invert_settings.clone(),
                 eval_spp: invert::run::DEFAULT_EVAL_SPP,
                 eval_stride: invert::run::DEFAULT_EVAL_STRIDE,
                 resume,
@@ -185,14 +184,10 @@ pub fn run(opts: &Options) -> Result<Vec<StepOutcome>> {
     Ok(runner.steps)
 }
 
-/// Stage 3's settings for the run: the preset's, with `--loss` if given.
-fn invert_settings(opts: &Options) -> crate::stages::invert::Settings {
-    use crate::stages::invert::Settings;
-    let mut s = opts.preset.pick(Settings::fast, Settings::paper);
-    if let Some(l) = opts.loss {
-        s.loss = l;
-    }
-    s
+/// Stage 3's settings for the run: the preset's, with the run's options.
+fn invert_settings(opts: &Options) -> Result<Settings> {
+    opts.invert
+        .apply(opts.preset.pick(Settings::fast, Settings::paper))
 }
 
 /// Runs the steps of one `lightfuse run` in order, skipping those whose outputs are up to date
@@ -233,13 +228,13 @@ impl<'o> Runner<'o> {
         })
     }
 
-    /// Whether the outputs of step `name` were made with this run's settings (stage 3's loss,
+    /// Whether the outputs of step `name` were made with this run's settings (stage 3's,
     /// the evaluation's denoising; the other steps' settings are the preset's).
     fn settings_match(&self, name: &str, outputs: &[PathBuf]) -> bool {
         match name {
             "evaluate" => eval_settings_match(&outputs[0], self.opts.denoise),
             "stage 3: invert" => {
-                invert_settings_match(&outputs[1], invert_settings(self.opts).loss)
+                invert_settings(self.opts).is_ok_and(|s| invert_settings_match(&outputs[1], &s))
             }
             _ => true,
         }
@@ -344,14 +339,45 @@ mod tests {
             !eval_settings_match(&f, false),
             "an ablation's partial evaluation"
         );
-        // Stage 3: the image term (reports without it were trained with L1).
-        write(serde_json::json!({"settings": {"iterations": 3}}));
-        assert!(invert_settings_match(&f, Loss::L1));
-        assert!(!invert_settings_match(&f, Loss::WeightedL2));
-        write(serde_json::json!({"settings": {"loss": "weighted_l2"}}));
-        assert!(invert_settings_match(&f, Loss::WeightedL2));
-        assert!(!invert_settings_match(&f, Loss::L1));
-        assert!(!invert_settings_match(&dir.join("none.json"), Loss::L1));
+        // Stage 3: every setting; a report written before a field was trained with its
+        // default (the paper's L1, one bounce, no light fit).
+        let fast = Settings::fast();
+        let mut old = serde_json::to_value(&fast).unwrap();
+        for later in ["loss", "bounces", "light_fit"] {
+            old.as_object_mut().unwrap().remove(later).unwrap();
+        }
+        write(serde_json::json!({ "settings": old }));
+        assert!(invert_settings_match(&f, &fast));
+        let run = |o: Overrides| o.apply(Settings::fast()).unwrap();
+        for other in [
+            Overrides {
+                loss: Some(Loss::WeightedL2),
+                ..Default::default()
+            },
+            Overrides {
+                bounces: Some(4),
+                ..Default::default()
+            },
+            Overrides {
+                light_fit: true,
+                ..Default::default()
+            },
+            Overrides {
+                seed: Some(1),
+                ..Default::default()
+            },
+        ] {
+            assert!(!invert_settings_match(&f, &run(other.clone())), "{other:?}");
+            write(serde_json::json!({ "settings": run(other.clone()) }));
+            assert!(invert_settings_match(&f, &run(other.clone())), "{other:?}");
+            assert!(!invert_settings_match(&f, &fast), "{other:?}");
+        }
+        write(serde_json::json!({"seconds": 3}));
+        assert!(
+            !invert_settings_match(&f, &fast),
+            "a report without settings"
+        );
+        assert!(!invert_settings_match(&dir.join("none.json"), &fast));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

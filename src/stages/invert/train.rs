@@ -39,7 +39,7 @@ use crate::scene::synthetic::SplitMix;
 use crate::scene::{Environment, Surfels};
 use crate::shade::envmap::{direction_to_uv, EnvMap};
 use crate::shade::estimator::{Estimator, Strategy};
-use crate::shade::replay::MAX_BOUNCES;
+use crate::shade::replay::check_bounces;
 use crate::shade::Sampler;
 use crate::trace::{
     scatter_material_grad, MaterialGrads, RecordGrad, SurfaceRecord, TraceRay, TraceScene,
@@ -275,12 +275,7 @@ impl Settings {
     /// Settings no run can use, as the option that sets them would say it.
     pub fn check(&self) -> crate::Result<()> {
         let (w, h) = self.env_size();
-        if !(1..=MAX_BOUNCES).contains(&self.bounces) {
-            return Err(crate::Error::Usage(format!(
-                "--bounces: expected 1 to {MAX_BOUNCES} indirect bounces, found {}",
-                self.bounces
-            )));
-        }
+        check_bounces(self.bounces, "--bounces")?;
         if pyramid::coarse_sizes(w, h, self.env_levels).is_none() {
             return Err(crate::Error::Usage(format!(
                 "--env-levels: expected 1 or more levels, each halving the {w}×{h} environment \
@@ -379,6 +374,116 @@ impl Settings {
             }
         };
         self.spp * k
+    }
+}
+
+/// The options that change stage 3's [`Settings`] from a preset's, as `lightfuse invert` and
+/// `lightfuse run` spell them (one list for both commands, so a run can train what `invert`
+/// can). Each absent option keeps the preset's value.
+#[derive(Clone, Debug, Default, PartialEq, clap::Args)]
+pub struct Overrides {
+    /// Iterations (default: the preset's); the stage boundaries stay where the preset puts them.
+    #[arg(long)]
+    pub iterations: Option<u32>,
+    /// How samples per pixel grow: paper (x1, x2 from half, x4 from 80%), fixed8 (x1),
+    /// max16 (x1, x2 from half) - the paper's Table 4; default: the preset's (paper).
+    #[arg(long, value_enum)]
+    pub spp_schedule: Option<SppSchedule>,
+    /// Training estimator: full (environment next-event estimation and a BSDF continuation
+    /// with MIS, the paper's) or naive (cosine-hemisphere continuations only, no next-event
+    /// estimation, no MIS: the paper's Table 4 baseline); default: the preset's (full).
+    #[arg(long, value_enum)]
+    pub estimator: Option<Strategy>,
+    /// Image term: l1 (the paper's), weighted-l2 (unbiased at low spp) or bright-l1 (lit
+    /// pixels weigh more: keeps moved shadows out of the base colour;
+    /// `stages::invert::train::Loss`); default: the preset's.
+    #[arg(long, value_enum)]
+    pub loss: Option<Loss>,
+    /// How the environments' Adam steps are normalised: texel (per texel, the paper's) or
+    /// shared (one second moment per map: bright, well-constrained directions such as a sun
+    /// move further than noise; `stages::invert::train::EnvUpdate`); default: the preset's.
+    #[arg(long, value_enum)]
+    pub env_update: Option<EnvUpdate>,
+    /// The environments as sums of maps at halving resolutions (5 on 256x128: from 16x8), so
+    /// directions few samples reach move with their neighbourhood rather than alone on noise
+    /// (`optim::pyramid`; not in the paper); 1: one value per texel; default: the preset's.
+    #[arg(long)]
+    pub env_levels: Option<u32>,
+    /// λ of the base-colour prior (neighbours of one chromaticity in stage 1's colours drawn
+    /// to one base colour, so shadows are not painted: `stages::invert::prior`; not in the
+    /// paper); 0 turns it off; default: the preset's.
+    #[arg(long)]
+    pub base_color_prior: Option<f32>,
+    /// Start stage 3 from a linear fit of each state's lighting to the shadows the geometry
+    /// casts (and one base colour per surface group) instead of the sky seen and grey
+    /// (`stages::invert::lightfit`; not in the paper).
+    #[arg(long)]
+    pub light_fit: bool,
+    /// Indirect bounces of the training estimator, counted as Cycles' max bounces: 1 is the
+    /// paper's one-bounce estimator; more (up to 4) stop the base colour from standing in for
+    /// the light that reaches a surface after several bounces (`shade::replay`, "Deeper
+    /// vertices"; not in the paper); default: the preset's.
+    #[arg(long)]
+    pub bounces: Option<u32>,
+    /// Sub-pixel positions per training pixel whose primary records are traced once and
+    /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
+    /// memory in proportion (the report states it).
+    #[arg(long)]
+    pub primary_jitters: Option<u32>,
+    /// Seed of stage 3's pixel draws and samples (default: the preset's, 0).
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+impl Overrides {
+    /// `preset` with every given option, checked ([`Settings::check`]): a value no run can
+    /// use is a usage error naming its option.
+    pub fn apply(&self, preset: Settings) -> crate::Result<Settings> {
+        let mut s = preset;
+        let usage = |m: &str| Err(crate::Error::Usage(m.to_string()));
+        if let Some(n) = self.iterations {
+            s.iterations = n;
+        }
+        if let Some(v) = self.spp_schedule {
+            s.spp_schedule = v;
+        }
+        if let Some(v) = self.estimator {
+            s.estimator = v;
+        }
+        if let Some(v) = self.loss {
+            s.loss = v;
+        }
+        if let Some(v) = self.env_update {
+            s.env_update = v;
+        }
+        if let Some(v) = self.env_levels {
+            s.env_levels = v;
+        }
+        if let Some(l) = self.base_color_prior {
+            if !(l.is_finite() && l >= 0.0) {
+                return usage(&format!(
+                    "--base-color-prior: expected a number ≥ 0, found {l}"
+                ));
+            }
+            s.lambda_base_color = l;
+        }
+        if self.light_fit {
+            s.light_fit = true;
+        }
+        if let Some(b) = self.bounces {
+            s.bounces = b;
+        }
+        if let Some(j) = self.primary_jitters {
+            if j == 0 {
+                return usage("--primary-jitters: expected at least 1");
+            }
+            s.primary_jitters = j;
+        }
+        if let Some(v) = self.seed {
+            s.seed = v;
+        }
+        s.check()?;
+        Ok(s)
     }
 }
 
