@@ -26,7 +26,7 @@ pub struct Options {
     /// an `eval.json` made with the other setting is out of date.
     pub denoise: bool,
     /// Stage 3's options on top of the preset's ([`Overrides`]); a stage-3 output trained with
-    /// other settings is out of date.
+    /// other values for any of them is out of date.
     pub invert: Overrides,
     pub quiet: bool,
 }
@@ -83,15 +83,20 @@ fn eval_settings_match(eval_json: &Path, denoise: bool) -> bool {
     denoised == Some(denoise) && complete
 }
 
-/// False when stage 3's report was trained with other settings than `settings` (every field:
-/// a report without one of the later fields was trained with its default, as its checkpoint
-/// would be read back), or cannot be read.
-fn invert_settings_match(report_json: &Path, settings: &Settings) -> bool {
+/// False when stage 3's report was trained with other values than `options` give (the options
+/// not given are not compared: an output `lightfuse invert` made with its own options counts
+/// as it is, as stage 1's and 2's outputs do), or when it records no settings or cannot be read.
+/// A report without one of the later fields was trained with its default, as serde reads it.
+fn invert_settings_match(report_json: &Path, options: &Overrides) -> bool {
     std::fs::read(report_json)
         .ok()
         .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
         .and_then(|v| serde_json::from_value::<Settings>(v.get("settings")?.clone()).ok())
-        .is_some_and(|recorded| recorded == *settings)
+        .is_some_and(|recorded| {
+            options
+                .apply(recorded.clone())
+                .is_ok_and(|asked| asked == recorded)
+        })
 }
 
 /// Runs stages 1–3 and the evaluation; returns what each step did.
@@ -228,14 +233,12 @@ impl<'o> Runner<'o> {
         })
     }
 
-    /// Whether the outputs of step `name` were made with this run's settings (stage 3's,
+    /// Whether the outputs of step `name` were made with this run's settings (stage 3's options,
     /// the evaluation's denoising; the other steps' settings are the preset's).
     fn settings_match(&self, name: &str, outputs: &[PathBuf]) -> bool {
         match name {
             "evaluate" => eval_settings_match(&outputs[0], self.opts.denoise),
-            "stage 3: invert" => {
-                invert_settings(self.opts).is_ok_and(|s| invert_settings_match(&outputs[1], &s))
-            }
+            "stage 3: invert" => invert_settings_match(&outputs[1], &self.opts.invert),
             _ => true,
         }
     }
@@ -339,7 +342,7 @@ mod tests {
             !eval_settings_match(&f, false),
             "an ablation's partial evaluation"
         );
-        // Stage 3: every setting; a report written before a field was trained with its
+        // Stage 3: the options given; a report written before a field was trained with its
         // default (the paper's L1, one bounce, no light fit).
         let fast = Settings::fast();
         let mut old = serde_json::to_value(&fast).unwrap();
@@ -347,9 +350,18 @@ mod tests {
             old.as_object_mut().unwrap().remove(later).unwrap();
         }
         write(serde_json::json!({ "settings": old }));
-        assert!(invert_settings_match(&f, &fast));
-        let run = |o: Overrides| o.apply(Settings::fast()).unwrap();
-        for other in [
+        let none = Overrides::default();
+        assert!(invert_settings_match(&f, &none));
+        let l1 = Overrides {
+            loss: Some(Loss::L1),
+            bounces: Some(1),
+            ..Default::default()
+        };
+        assert!(
+            invert_settings_match(&f, &l1),
+            "the defaults of the later fields"
+        );
+        let others = [
             Overrides {
                 loss: Some(Loss::WeightedL2),
                 ..Default::default()
@@ -366,18 +378,58 @@ mod tests {
                 seed: Some(1),
                 ..Default::default()
             },
-        ] {
-            assert!(!invert_settings_match(&f, &run(other.clone())), "{other:?}");
-            write(serde_json::json!({ "settings": run(other.clone()) }));
-            assert!(invert_settings_match(&f, &run(other.clone())), "{other:?}");
-            assert!(!invert_settings_match(&f, &fast), "{other:?}");
+        ];
+        for other in &others {
+            assert!(!invert_settings_match(&f, other), "{other:?}");
         }
+        // An output made with other options (by `invert`, or an earlier `run`) counts as it
+        // is when this run gives none, and is out of date when it gives other values.
+        let made = Overrides {
+            bounces: Some(4),
+            light_fit: true,
+            iterations: Some(4),
+            ..Default::default()
+        };
+        write(serde_json::json!({ "settings": made.apply(Settings::fast()).unwrap() }));
+        assert!(invert_settings_match(&f, &none));
+        assert!(invert_settings_match(&f, &made));
+        assert!(invert_settings_match(
+            &f,
+            &Overrides {
+                bounces: Some(4),
+                ..Default::default()
+            }
+        ));
+        assert!(!invert_settings_match(
+            &f,
+            &Overrides {
+                bounces: Some(2),
+                ..Default::default()
+            }
+        ));
+        assert!(!invert_settings_match(
+            &f,
+            &Overrides {
+                iterations: Some(2000),
+                ..Default::default()
+            }
+        ));
+        assert!(
+            !invert_settings_match(
+                &f,
+                &Overrides {
+                    bounces: Some(9),
+                    ..Default::default()
+                }
+            ),
+            "unusable"
+        );
         write(serde_json::json!({"seconds": 3}));
         assert!(
-            !invert_settings_match(&f, &fast),
+            !invert_settings_match(&f, &none),
             "a report without settings"
         );
-        assert!(!invert_settings_match(&dir.join("none.json"), &fast));
+        assert!(!invert_settings_match(&dir.join("none.json"), &none));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
