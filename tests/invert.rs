@@ -27,14 +27,14 @@
 use glam::Vec3;
 use lightfuse::io::dataset::Observation;
 use lightfuse::scene::{Environment, Rigid, Scene, Surfels};
-use lightfuse::shade::envmap::{uv_to_direction, EnvMap};
+use lightfuse::shade::envmap::EnvMap;
 use lightfuse::shade::estimator::{self_hit_epsilon, Estimator, PixelFilter, DEFAULT_FILTER_WIDTH};
 use lightfuse::stages::invert::cache::TrainState;
 use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings, SppSchedule};
 use lightfuse::trace::TraceScene;
 
 mod common;
-use common::inversion::{grey_start, train_states};
+use common::inversion::{grey_start, oriented, sky, train_states};
 use common::surfel_scenes::{camera, floor, mat, scene_of, sphere};
 
 const FLOOR: [f32; 3] = [0.6, 0.45, 0.3];
@@ -43,21 +43,6 @@ const BALL_ROUGHNESS: f32 = 0.3;
 const FLOOR_ROUGHNESS: f32 = 0.8;
 const EW: usize = 64;
 const EH: usize = 32;
-
-/// A smooth sky: a vertical gradient, a coloured horizon band and a small bright sun at `sun`
-/// (cos²⁵⁶: ~4° across).
-fn sky(sun: Vec3, tint: [f32; 3]) -> Environment {
-    let px = (0..EW * EH)
-        .map(|i| {
-            let (x, y) = (i % EW, i / EW);
-            let d = uv_to_direction([(x as f32 + 0.5) / EW as f32, (y as f32 + 0.5) / EH as f32]);
-            let up = d.y.max(0.0);
-            let sunny = (d.dot(sun).max(0.0)).powi(256) * 150.0;
-            [0, 1, 2].map(|c| (0.3 + 0.7 * up) * tint[c] + sunny + 0.1)
-        })
-        .collect();
-    Environment::new("sky", EW, EH, px)
-}
 
 struct Truth {
     scene: Scene,
@@ -79,74 +64,26 @@ fn truth() -> Truth {
     Truth {
         scene,
         envs: vec![
-            sky(Vec3::new(0.5, 0.7, 0.5).normalize(), [0.5, 0.7, 1.0]),
-            sky(Vec3::new(-0.6, 0.5, -0.3).normalize(), [1.0, 0.8, 0.6]),
+            sky(
+                EW,
+                EH,
+                Vec3::new(0.5, 0.7, 0.5).normalize(),
+                [0.5, 0.7, 1.0],
+            ),
+            sky(
+                EW,
+                EH,
+                Vec3::new(-0.6, 0.5, -0.3).normalize(),
+                [1.0, 0.8, 0.6],
+            ),
         ],
     }
-}
-
-/// `cam` turned about the world's vertical by `yaw` degrees after being pitched up by `pitch`
-/// degrees about its own x axis: R = R_y(yaw) R_x(pitch).
-fn oriented(mut cam: lightfuse::scene::Camera, yaw: f32, pitch: f32) -> lightfuse::scene::Camera {
-    let r = glam::Mat3::from_rotation_y(yaw.to_radians())
-        * glam::Mat3::from_rotation_x(pitch.to_radians());
-    let m = &mut cam.transform_matrix;
-    for (i, row) in m.iter_mut().take(3).enumerate() {
-        for (j, v) in row.iter_mut().take(3).enumerate() {
-            *v = r.col(j)[i];
-        }
-    }
-    cam
 }
 
 /// Captures: eight cameras per state (three 48x48 of the objects, five 32x32 of the sky), rendered
 /// at 128 spp, with planar depth.
 fn captures(t: &Truth) -> Vec<Vec<Observation>> {
-    let trace = TraceScene::new(&t.scene);
-    let filter = PixelFilter::new(DEFAULT_FILTER_WIDTH);
-    t.scene
-        .states
-        .iter()
-        .enumerate()
-        .map(|(k, st)| {
-            let placed = trace.place_state(st);
-            let map = EnvMap::new(&t.envs[k], 0.0);
-            let est = Estimator::new(&placed, &map, self_hit_epsilon(&t.scene, st));
-            // Three views of the objects, and five of the sky from above the floor: one
-            // straight up (~120° across) and four at 25° in the four compass directions (~90°
-            // across), so every direction above the horizon is seen and the captures, not the
-            // optimiser's prior, decide the environment (and with it the albedos' scale).
-            let objects = [-0.7f32, 0.0, 0.7].map(|x| (Vec3::new(x, 0.2, 2.4), 0.0, 0.0, 40.0, 48));
-            let up = Vec3::new(0.0, 0.8, 0.0);
-            let sky = [
-                (up, 0.0, 90.0, 9.0, 32),
-                (up, 0.0, 25.0, 16.0, 32),
-                (up, 90.0, 25.0, 16.0, 32),
-                (up, 180.0, 25.0, 16.0, 32),
-                (up, 270.0, 25.0, 16.0, 32),
-            ];
-            objects
-                .iter()
-                .chain(&sky)
-                .enumerate()
-                .map(|(v, &(eye, yaw, pitch, fl, size))| {
-                    let cam = oriented(camera(eye, size, size, fl), yaw, pitch);
-                    let pixels: Vec<_> = (0..size * size)
-                        .map(|i| est.pixel(&cam, &filter, (i % size, i / size), 128, 77))
-                        .collect();
-                    Observation {
-                        state: k,
-                        view: v,
-                        camera: cam,
-                        rgb: pixels.iter().map(|p| p.rgb).collect(),
-                        depth: pixels.iter().map(|p| p.depth).collect(),
-                        normal: pixels.iter().map(|p| p.normal).collect(),
-                        mask: vec![0; (size * size) as usize],
-                    }
-                })
-                .collect()
-        })
-        .collect()
+    common::inversion::captures(&t.scene, &t.envs, 128)
 }
 
 /// Per part, the mean base colour and roughness the pixels' centre rays see, over every view.

@@ -9,6 +9,7 @@
 //! `relightable.usda` with a report.
 
 pub mod cache;
+pub mod hypotheses;
 pub mod lightfit;
 pub mod prior;
 pub mod run;

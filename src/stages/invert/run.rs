@@ -4,6 +4,7 @@
 
 use super::cache::TrainState;
 use super::cache::{CacheFigures, PrimaryCache};
+use super::hypotheses::SearchFigures;
 use super::lightfit::FitFigures;
 use super::train::{Inverter, Settings};
 use crate::error::{Error, Result};
@@ -75,6 +76,10 @@ pub struct Report {
     /// What the linear lighting fit found and cost (`--light-fit`; [`super::lightfit`]).
     #[serde(default)]
     pub light_fit: Option<FitFigures>,
+    /// Each object's material hypotheses and the one it started from (`--material-search`;
+    /// [`super::hypotheses`]).
+    #[serde(default)]
+    pub material_search: Option<SearchFigures>,
 }
 
 /// What a resumed run needs: the inverter (parameters, Adam, iteration, generator), and the
@@ -87,6 +92,9 @@ struct Checkpoint {
     /// [`super::lightfit`]'s figures when the run started from it.
     #[serde(default)]
     light_fit: Option<FitFigures>,
+    /// [`super::hypotheses`]' figures when the run started from its choices.
+    #[serde(default)]
+    material_search: Option<SearchFigures>,
 }
 
 impl Resumable for Checkpoint {
@@ -213,7 +221,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
                 },
             );
             let refs: Vec<&Surfels> = surfels.iter().collect();
-            let (inverter, light_fit) =
+            let (mut inverter, light_fit) =
                 Inverter::start(opts.settings.clone(), &trace, &loop_states, &refs);
             if let Some(f) = &light_fit {
                 say(
@@ -224,10 +232,39 @@ pub fn invert(opts: &Options) -> Result<Report> {
                     ),
                 );
             }
+            let material_search = opts.settings.material_search.then(|| {
+                let mut scratch = surfels.clone();
+                let component_names: Vec<String> =
+                    scene.components.iter().map(|c| c.name.clone()).collect();
+                let f = super::hypotheses::search(
+                    &mut inverter,
+                    &mut trace,
+                    &mut scratch,
+                    &loop_states,
+                    &component_names,
+                );
+                for o in &f.objects {
+                    say(
+                        opts.quiet,
+                        &format!(
+                            "material search: {} starts {} ({})",
+                            o.object,
+                            o.chosen,
+                            o.hypotheses
+                                .iter()
+                                .map(|h| format!("{} {:.3}", h.name, h.residual))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ),
+                    );
+                }
+                f
+            });
             Ok(Checkpoint {
                 inverter,
                 training_seconds: 0.0,
                 light_fit,
+                material_search,
             })
         },
     )?;
@@ -302,6 +339,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
         albedo: None,
         materials: Vec::new(),
         light_fit: c.light_fit.clone(),
+        material_search: c.material_search.clone(),
     };
     let figures = crate::eval::stage3::measure(
         &out,

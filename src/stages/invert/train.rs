@@ -242,6 +242,10 @@ pub struct Settings {
     /// checkpoints and reports: off).
     #[serde(default)]
     pub light_fit: bool,
+    /// Start each object from the best of a few material hypotheses
+    /// ([`super::hypotheses`]; not in the paper; old checkpoints and reports: off).
+    #[serde(default)]
+    pub material_search: bool,
     /// Initial material (activated values).
     pub init_base_color: f32,
     pub init_metallic: f32,
@@ -319,6 +323,7 @@ impl Settings {
             lambda_tv: 0.01,
             lambda_base_color: 0.0,
             light_fit: false,
+            material_search: false,
             init_base_color: 0.5,
             init_metallic: 0.02,
             init_roughness: 0.7,
@@ -419,6 +424,12 @@ pub struct Overrides {
     /// (`stages::invert::lightfit`; not in the paper).
     #[arg(long)]
     pub light_fit: bool,
+    /// Start each object from the best of a few material hypotheses (the preset's, glossy,
+    /// brushed and polished metal), each tested on the object's training pixels with its best
+    /// base colour, so chrome can start as a metal (`stages::invert::hypotheses`; not in the
+    /// paper).
+    #[arg(long)]
+    pub material_search: bool,
     /// Indirect bounces of the training estimator, counted as Cycles' max bounces: 1 is the
     /// paper's one-bounce estimator; more (up to 4) stop the base colour from standing in for
     /// the light that reaches a surface after several bounces (`shade::replay`, "Deeper
@@ -469,6 +480,9 @@ impl Overrides {
         }
         if self.light_fit {
             s.light_fit = true;
+        }
+        if self.material_search {
+            s.material_search = true;
         }
         if let Some(b) = self.bounces {
             s.bounces = b;
@@ -603,7 +617,7 @@ impl Passes<'_> {
     /// `out`: sample i starts at `out[i mod J]` (J = the cache's jitters; [`PrimaryCache::entry`]).
     /// Each is rebuilt once per pass however many samples start at it: at the default J = 1
     /// all spp of them, and rebuilding means reading every hit surfel's material.
-    fn primaries(&self, p: u32, out: &mut Vec<(TraceRay, SurfaceRecord)>) {
+    pub(super) fn primaries(&self, p: u32, out: &mut Vec<(TraceRay, SurfaceRecord)>) {
         out.clear();
         let j = self.cache.jitters().min(self.spp).max(1);
         out.extend((0..j).map(|k| {
@@ -990,6 +1004,18 @@ impl Inverter {
         for (dst, &v) in m.base_color.iter_mut().zip(colors.iter().flatten()) {
             *dst = logit(v.clamp(1e-3, 1.0 - 1e-3));
         }
+    }
+
+    /// Every surfel of component `c` starts at `metallic` and `roughness` (activated values) in
+    /// place of the settings' start.
+    pub fn set_lobes(&mut self, c: usize, metallic: f32, roughness: f32) {
+        let m = &mut self.materials[c];
+        let (lm, lr) = (
+            logit(metallic.clamp(1e-3, 1.0 - 1e-3)),
+            logit(roughness.clamp(1e-3, 1.0 - 1e-3)),
+        );
+        m.metallic.iter_mut().for_each(|v| *v = lm);
+        m.roughness.iter_mut().for_each(|v| *v = lr);
     }
 
     /// One iteration. `trace` holds the fixed geometry and `surfels` the same components (for
