@@ -19,7 +19,7 @@ use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings};
 use lightfuse::trace::TraceScene;
 
 mod common;
-use common::inversion::{captures, grey_start, sky, train_states};
+use common::inversion::{captures, grey_start, train_states, two_skies};
 use common::surfel_scenes::{floor, mat, scene_of, sphere};
 
 const EW: usize = 64;
@@ -61,20 +61,7 @@ fn truth() -> (Scene, Vec<Environment>) {
         };
     }
     scene.states.push(second);
-    let envs = vec![
-        sky(
-            EW,
-            EH,
-            Vec3::new(0.5, 0.7, 0.5).normalize(),
-            [0.5, 0.7, 1.0],
-        ),
-        sky(
-            EW,
-            EH,
-            Vec3::new(-0.6, 0.5, -0.3).normalize(),
-            [1.0, 0.8, 0.6],
-        ),
-    ];
+    let envs = two_skies(EW, EH);
     (scene, envs)
 }
 

@@ -34,7 +34,7 @@ use lightfuse::stages::invert::train::{initial_environment, Inverter, Settings, 
 use lightfuse::trace::TraceScene;
 
 mod common;
-use common::inversion::{grey_start, oriented, sky, train_states};
+use common::inversion::{grey_start, oriented, train_states, two_skies};
 use common::surfel_scenes::{camera, floor, mat, scene_of, sphere};
 
 const FLOOR: [f32; 3] = [0.6, 0.45, 0.3];
@@ -63,20 +63,7 @@ fn truth() -> Truth {
     scene.states.push(second);
     Truth {
         scene,
-        envs: vec![
-            sky(
-                EW,
-                EH,
-                Vec3::new(0.5, 0.7, 0.5).normalize(),
-                [0.5, 0.7, 1.0],
-            ),
-            sky(
-                EW,
-                EH,
-                Vec3::new(-0.6, 0.5, -0.3).normalize(),
-                [1.0, 0.8, 0.6],
-            ),
-        ],
+        envs: two_skies(EW, EH),
     }
 }
 

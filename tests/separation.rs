@@ -75,7 +75,7 @@ use lightfuse::stages::invert::train::{EnvUpdate, Inverter, Loss, Settings};
 use lightfuse::trace::TraceScene;
 
 mod common;
-use common::inversion::{grey_start, train_states};
+use common::inversion::{grey_start, observe, train_states};
 use common::surfel_scenes::{cuboid, floor, mat, scene_of};
 
 const FLOOR: [f32; 3] = [0.55, 0.5, 0.45];
@@ -206,21 +206,7 @@ fn captures(t: &Truth) -> Vec<Vec<Observation>> {
             ));
             cams.into_iter()
                 .enumerate()
-                .map(|(v, cam)| {
-                    let n = cam.w * cam.h;
-                    let pixels: Vec<_> = (0..n)
-                        .map(|i| est.pixel(&cam, &filter, (i % cam.w, i / cam.w), 96, 91))
-                        .collect();
-                    Observation {
-                        state: k,
-                        view: v,
-                        camera: cam,
-                        rgb: pixels.iter().map(|p| p.rgb).collect(),
-                        depth: pixels.iter().map(|p| p.depth).collect(),
-                        normal: pixels.iter().map(|p| p.normal).collect(),
-                        mask: vec![0; n as usize],
-                    }
-                })
+                .map(|(v, cam)| observe(&est, &filter, cam, (k, v), 96, 91))
                 .collect()
         })
         .collect()

@@ -101,20 +101,53 @@ pub fn captures(scene: &Scene, envs: &[Environment], spp: u32) -> Vec<Vec<Observ
                 .enumerate()
                 .map(|(v, &(eye, yaw, pitch, fl, size))| {
                     let cam = oriented(camera(eye, size, size, fl), yaw, pitch);
-                    let pixels: Vec<_> = (0..size * size)
-                        .map(|i| est.pixel(&cam, &filter, (i % size, i / size), spp, 77))
-                        .collect();
-                    Observation {
-                        state: k,
-                        view: v,
-                        camera: cam,
-                        rgb: pixels.iter().map(|p| p.rgb).collect(),
-                        depth: pixels.iter().map(|p| p.depth).collect(),
-                        normal: pixels.iter().map(|p| p.normal).collect(),
-                        mask: vec![0; (size * size) as usize],
-                    }
+                    observe(&est, &filter, cam, (k, v), spp, 77)
                 })
                 .collect()
         })
         .collect()
+}
+
+/// View `at` = (state, view) as `cam` sees it through `est`: every pixel at `spp` samples of
+/// seed `seed`, with planar depth and normals, no object mask.
+pub fn observe(
+    est: &Estimator,
+    filter: &PixelFilter,
+    cam: lightfuse::scene::Camera,
+    at: (usize, usize),
+    spp: u32,
+    seed: u32,
+) -> Observation {
+    let n = cam.w * cam.h;
+    let pixels: Vec<_> = (0..n)
+        .map(|i| est.pixel(&cam, filter, (i % cam.w, i / cam.w), spp, seed))
+        .collect();
+    Observation {
+        state: at.0,
+        view: at.1,
+        camera: cam,
+        rgb: pixels.iter().map(|p| p.rgb).collect(),
+        depth: pixels.iter().map(|p| p.depth).collect(),
+        normal: pixels.iter().map(|p| p.normal).collect(),
+        mask: vec![0; n as usize],
+    }
+}
+
+/// The two training skies of the tests' known scenes: a blue one with the sun up to the
+/// south-east, a warm one with it lower to the north-west.
+pub fn two_skies(ew: usize, eh: usize) -> Vec<Environment> {
+    vec![
+        sky(
+            ew,
+            eh,
+            Vec3::new(0.5, 0.7, 0.5).normalize(),
+            [0.5, 0.7, 1.0],
+        ),
+        sky(
+            ew,
+            eh,
+            Vec3::new(-0.6, 0.5, -0.3).normalize(),
+            [1.0, 0.8, 0.6],
+        ),
+    ]
 }
