@@ -76,7 +76,7 @@ pub const PIXELS: usize = 2048;
 /// Path samples per pixel and hypothesis.
 pub const SPP: u32 = 8;
 /// The share of an object's pixels its residual is measured over (the best fitting: see
-/// [`Rendered::fit`]).
+/// `Rendered::fit`).
 pub const KEEP: f64 = 0.9;
 /// Another hypothesis replaces the preset's start only when its residual is at least this much
 /// (relative) below the preset's: a choice the data clearly make.
