@@ -109,17 +109,24 @@ def set_camera(cam_obj, frame: dict) -> None:
     u, _, vt = np.linalg.svd(m[:3, :3])
     m[:3, :3] = u @ vt
     cam_obj.matrix_world = mathutils.Matrix(m.tolist())
-    cd = cam_obj.data
-    cd.type = "PERSP"
-    cd.sensor_fit = "HORIZONTAL"
-    cd.sensor_width = 36.0
-    cd.lens = fx / w * cd.sensor_width
-    # principal point offset: Blender shift is in units of the larger image dimension
-    cd.shift_x = -(cx - w / 2.0) / max(w, h)
-    cd.shift_y = (cy - h / 2.0) / max(w, h)
+    set_intrinsics(cam_obj.data, {"fl_x": fx, "cx": cx, "cy": cy, "w": w, "h": h})
     import bpy
 
     sc = bpy.context.scene
     sc.render.resolution_x = w
     sc.render.resolution_y = h
     sc.render.resolution_percentage = 100
+
+
+def set_intrinsics(cd, intr: dict) -> None:
+    """Set a Blender camera's data from pixel intrinsics (``fl_x``, ``cx``, ``cy``, ``w``, ``h``;
+    square pixels): the inverse of :func:`intrinsics`, with the principal point as a lens shift.
+    The render resolution is the caller's."""
+    w, h = int(intr["w"]), int(intr["h"])
+    cd.type = "PERSP"
+    cd.sensor_fit = "HORIZONTAL"
+    cd.sensor_width = 36.0
+    cd.lens = float(intr["fl_x"]) / w * cd.sensor_width
+    # principal point offset: Blender shift is in units of the larger image dimension
+    cd.shift_x = -(float(intr["cx"]) - w / 2.0) / max(w, h)
+    cd.shift_y = (float(intr["cy"]) - h / 2.0) / max(w, h)
