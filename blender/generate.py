@@ -12,6 +12,12 @@ shadows, chrome and glossy objects; ``scenes.PLAIN``), then renders with Cycles 
 * one held-out test state ``test0`` (a new arrangement) rendered from the same cameras under
   ``--relight`` environments not used in training (the ``relight`` list).
 
+Or your own scene (``--scene my.blend|my.glb --movable NAME,...``; ``ownscene.py`` and
+``docs/own-scene.md``): the named objects (or collections) move, the rest is the background;
+each state is a new arrangement on supports found by ray casting (or ``--layouts``, one
+layout.json per state), seen by cameras placed around the objects (or ``--cameras scene|FILE``);
+the scene's materials render as they are, its lights are dropped (environments only).
+
 Per frame: linear HDR RGB (EXR, channels R G B), planar depth (EXR, channel Z, metres along the
 camera's viewing axis, 0 = no hit), world-space unit normals (EXR, R G B = x y z in the Y-up
 world, 0 = no hit), object-id mask (8-bit greyscale PNG, value = object id, 0 = background and
@@ -54,7 +60,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
 
 import lfio  # noqa: E402
-from lfaxes import bl_to_yup_matrix, cam_bl_to_yup, intrinsics, rows  # noqa: E402
+from lfaxes import bl_to_yup_matrix, cam_bl_to_yup, intrinsics, rows, set_intrinsics  # noqa: E402
 from lfblend import ID_PROP, SCENE_KEY  # noqa: E402
 from lfcli import Parser, UserError, quiet_stdout, run_main  # noqa: E402
 from lfenv import bundled_hdris, env_name, env_mean_luminance, load_env, resolve_hdri, rotate_env, setup_world  # noqa: E402
@@ -80,6 +86,18 @@ FULL = dict(res="320x240", views=24, states=3, spp=64, relight=5, max_bounces=4,
 def parse_args(argv):
     p = Parser(prog="generate.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default=None, help=f"scene preset: {', '.join(PRESET_NAMES)} (default bedroom)")
+    p.add_argument("--scene", help="your own scene instead of a preset: a .blend, .glb or .gltf (needs --movable)")
+    p.add_argument("--movable", help="with --scene: comma-separated names of the objects (or collections: each of "
+                                     "their top-level objects) that move between states; the rest is the background")
+    p.add_argument("--layouts", help="with --scene: comma-separated layout.json files, one per training state and "
+                                     "then the test state's (each movable's rigid motion from the scene as loaded, "
+                                     "Y-up); default: a new random arrangement per state")
+    p.add_argument("--cameras", help="with --scene: auto (default: around the movable objects, per state), scene "
+                                     "(the scene's own cameras) or a JSON file of frames with transform_matrix")
+    p.add_argument("--symmetry", action="append", metavar="NAME:ORDER",
+                   help="with --scene: an object's symmetry about its vertical axis through its surface centroid "
+                        "(0 continuous, n >= 2 n-fold, none), checked; repeatable. Default: detected by the same "
+                        "check (surface and albedo)")
     p.add_argument("--demo", action="store_true",
                    help="small demo: preset 'demo', %(d)s unless overridden" % {"d": DEMO})
     p.add_argument("--res", help="WxH in pixels (default 320x240; demo 128x96)")
@@ -101,22 +119,40 @@ def parse_args(argv):
     p.add_argument("--force", action="store_true", help="overwrite an existing non-empty --out")
     p.add_argument("--quiet", action="store_true", help="no per-frame progress lines")
     a = p.parse_args(argv)
+    if a.scene is not None:
+        if a.preset is not None or a.demo:
+            raise UserError("--scene: give either --scene or --preset/--demo, not both")
+        if not a.movable:
+            raise UserError("--scene: --movable is required (the names of the objects that move between states)")
+        a.preset = "own"
+    else:
+        for k in ("movable", "layouts", "cameras", "symmetry"):
+            if getattr(a, k) is not None:
+                raise UserError(f"--{k}: only with --scene (your own scene)")
     if a.preset is None:
         a.preset = "demo" if a.demo else "bedroom"
+    if a.scene is not None:
+        if a.layouts and a.states is None:
+            a.states = max(len([x for x in a.layouts.split(",") if x.strip()]) - 1, 1)
+        return _sized(a, FULL, {})
     if a.preset not in PRESET_NAMES:
         raise UserError(f"--preset: unknown preset {a.preset!r}; expected one of {', '.join(PRESET_NAMES)}")
     import bpy  # noqa: F401  (first: scenes' bmesh and mathutils come with it)
     import scenes
 
     base = DEMO if a.demo else PLAIN_SIZE if a.preset in scenes.PLAIN else FULL
+    return _sized(a, base, {} if a.hdri_dir else scenes.PRESETS[a.preset])
+
+
+def _sized(a, base: dict, spec: dict):
+    """Fill the options left out from ``base`` (a size) and ``spec`` (a preset's environments),
+    and check them."""
     # A preset that names its environments (the plain family's sun skies) uses them unless told
     # otherwise; --hdri-dir means the user's own HDRIs instead.
-    if not a.hdri_dir:
-        spec = scenes.PRESETS[a.preset]
-        if a.train_envs is None and "train_envs" in spec:
-            a.train_envs = ",".join(spec["train_envs"])
-        if a.test_envs is None and a.relight is None and "test_envs" in spec:
-            a.test_envs = ",".join(spec["test_envs"])
+    if a.train_envs is None and "train_envs" in spec:
+        a.train_envs = ",".join(spec["train_envs"])
+    if a.test_envs is None and a.relight is None and "test_envs" in spec:
+        a.test_envs = ",".join(spec["test_envs"])
     for k, v in base.items():
         if getattr(a, k) is None:
             setattr(a, k, v)
@@ -302,18 +338,16 @@ def _run(a, out: str, final: str, t0: float) -> None:
 
     import scenes
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    desc = scenes.build_scene(a.preset)
-    movables = desc["movables"]
-    objects = [{"id": i + 1, "name": name, "symmetries": desc["symmetries"][name], "material": object_material(ob)}
-               for i, (name, ob, *_rest) in enumerate(movables)]
-    for i, (name, ob, *_r) in enumerate(movables):
-        ob.pass_index = i + 1
-        ob[ID_PROP] = i + 1
-    for ob in bpy.data.objects:
-        if ID_PROP not in ob:
-            ob.pass_index = 0
-            ob[ID_PROP] = 0
+    if a.scene is None:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        desc = scenes.build_scene(a.preset)
+        movables = [(name, ob, [ob]) for name, ob, *_rest in desc["movables"]]
+        meta = {name: {"symmetries": desc["symmetries"][name], "material": object_material(ob)}
+                for name, ob, _parts in movables}
+    else:
+        import ownscene
+
+        own = ownscene.OwnScene(a)  # opens or imports the scene: before anything is added to it
     sc = bpy.context.scene
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     sc.collection.objects.link(cam)
@@ -326,15 +360,42 @@ def _run(a, out: str, final: str, t0: float) -> None:
     sc.render.resolution_x, sc.render.resolution_y = a.w, a.h
     sc.render.resolution_percentage = 100
     setup_render(a.spp, a.max_bounces, a.denoise, a.threads)
+    intr = intrinsics(cam.data, a.w, a.h)
+    K = a.states
+    if a.scene is None:
+        arrangements = [scenes.arrange(desc, random.Random(f"{a.seed}-arrange-{k}")) for k in range(K + 1)]
+
+        def views(k, n, rng):
+            return [(m, intr) for m in make_cameras(rng, n, desc["size"], a.w, a.h, path=desc["cameras"],
+                                                    furniture=list(zip(desc["obstacles"], desc["tops"])))]
+
+        def frame(_name, world):
+            return bl_to_yup_matrix(world)
+    else:
+        tmp = make_tmpdir()
+        try:
+            desc = ownscene.build(own, a, a.w, a.h, intr, tmp)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        movables, meta, arrangements = desc["movables"], desc["meta"], desc["arrangements"]
+        views, frame = desc["views"], desc["frame"]
+        sc.camera = cam
+    objects = [{"id": i + 1, "name": name, **meta[name]} for i, (name, *_r) in enumerate(movables)]
+    for i, (name, ob, parts) in enumerate(movables):
+        for o in parts:
+            o.pass_index = i + 1
+            o[ID_PROP] = i + 1
+    for ob in bpy.data.objects:
+        if ID_PROP not in ob:
+            ob.pass_index = 0
+            ob[ID_PROP] = 0
 
     if os.path.isdir(out):
         shutil.rmtree(out)
     os.makedirs(os.path.join(out, "env"))
-    K = a.states
-    arrangements = [scenes.arrange(desc, random.Random(f"{a.seed}-arrange-{k}")) for k in range(K + 1)]
     ref = arrangements[0]
     for o in objects:  # each object's own frame in the reference state (evaluation only)
-        o["reference_pose"] = rows(bl_to_yup_matrix(ref[o["name"]]))
+        o["reference_pose"] = rows(frame(o["name"], ref[o["name"]]))
 
     def place(arr):
         for name, ob, *_r in movables:
@@ -347,7 +408,6 @@ def _run(a, out: str, final: str, t0: float) -> None:
         return {name: rows(bl_to_yup_matrix(arr[name] @ np.linalg.inv(ref[name]))) for name, *_r in movables}
 
     tmp = make_tmpdir()
-    intr = intrinsics(cam.data, a.w, a.h)
     states = []
     env_cache: dict = {}
     nframes = 0
@@ -357,8 +417,7 @@ def _run(a, out: str, final: str, t0: float) -> None:
             name = "test0" if is_test else f"state{k}"
             place(arrangements[k])
             rng_cam = random.Random(f"{a.seed}-cams-{k}")
-            cams = make_cameras(rng_cam, a.test_views if is_test else a.views, desc["size"], a.w, a.h,
-                                path=desc["cameras"], furniture=list(zip(desc["obstacles"], desc["tops"])))
+            cams = views(k, a.test_views if is_test else a.views, rng_cam)
             rng_rot = random.Random(f"{a.seed}-envrot-{k}")
             st = {"name": name, "split": "test" if is_test else "train"}
             envs = test_envs if is_test else [train_envs[k]]
@@ -387,8 +446,10 @@ def _run(a, out: str, final: str, t0: float) -> None:
                 os.makedirs(os.path.join(out, run["prefix"], "rgb"), exist_ok=True)
                 setup_world(os.path.join(out, run["env_rel"]))
                 frames = []
-                for i, m in enumerate(cams):
+                for i, (m, view_intr) in enumerate(cams):
                     cam.matrix_world = mathutils.Matrix(m.tolist())
+                    if view_intr != intr:
+                        set_intrinsics(cam.data, view_intr)
                     rel = frame_paths(run["prefix"], geo_prefix, i)
                     if r_i == 0:
                         write_geometry(out, rel, render_geometry(tmp))
@@ -396,7 +457,7 @@ def _run(a, out: str, final: str, t0: float) -> None:
                     lfio.write_rgb_exr(os.path.join(out, rel["file_path"]), rgb)
                     fr = dict(rel)
                     fr["transform_matrix"] = rows(cam_bl_to_yup(m))
-                    fr.update(intr)
+                    fr.update(view_intr)
                     frames.append(fr)
                     nframes += 1
                     if not a.quiet:
@@ -436,7 +497,9 @@ def _run(a, out: str, final: str, t0: float) -> None:
         "generator": {"tool": "blender/generate.py", "preset": a.preset, "seed": a.seed, "spp": a.spp,
                       "max_bounces": a.max_bounces, "denoise": a.denoise, "filter_width": 1.5,
                       "resolution": [a.w, a.h], "blender": bpy.app.version_string,
-                      "mask_format": "png8", "depth_channel": "Z"},
+                      "mask_format": "png8", "depth_channel": "Z",
+                      **({"scene": desc["source"], "cameras": a.cameras or "auto",
+                          "layouts": bool(a.layouts)} if a.scene else {})},
         "states": states,
     }
     write_json(os.path.join(out, "dataset.json"), dataset)
