@@ -118,7 +118,8 @@ def scene_trees(root):
     trees, smooth = {0: t}, {0: sm}
     raw = {}
     for i, n in names.items():
-        t, v, p, sm = tree([bpy.data.objects[n]])
+        root = bpy.data.objects[n]
+        t, v, p, sm = tree([root, *(o for o in root.children_recursive if o.type == "MESH")])
         trees[i], smooth[i] = t, sm
         raw[i] = (np.array([x[:] for x in v]), p)
     return {"trees": trees, "names": names, "raw": raw, "rec": rec, "smooth": smooth}

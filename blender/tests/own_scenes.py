@@ -67,7 +67,8 @@ def _origin_to_base(ob):
 
 def room_blend(path):
     """A 3 m x 3 m room (floor, two walls) with a table, a shelf unit against a wall, a lamp and
-    a camera; movable: crate (checker base colour), can (metal, roughness map), ball, cone."""
+    a camera; movable: crate (checker base colour), can (metal, roughness map), and in the
+    collection Toys a ball and a cone."""
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -99,6 +100,12 @@ def room_blend(path):
     cone = bpy.context.active_object
     cone.name = "cone"
     cone.data.materials.append(_material("yellow", (0.85, 0.65, 0.1), roughness=0.8))
+    toys = bpy.data.collections.new("Toys")  # a collection: --movable Toys takes ball and cone
+    bpy.context.scene.collection.children.link(toys)
+    for ob in (ball, cone):
+        for c in list(ob.users_collection):
+            c.objects.unlink(ob)
+        toys.objects.link(ob)
     bpy.ops.object.light_add(type="POINT", location=(0, 0, 2))
     bpy.context.active_object.name = "ceiling_lamp"
     bpy.ops.object.camera_add(location=(1.6, 1.8, 1.5))
@@ -112,8 +119,9 @@ def room_blend(path):
 
 
 def corner_glb(path):
-    """A workshop corner (floor, one wall, a low bench) with a block, a pyramid and a mug-like
-    ring, exported as a binary glTF: what another DCC tool would hand over."""
+    """A workshop corner (floor, one wall, a low bench) with a block (a knob on top as its child),
+    a pyramid and a mug-like ring, exported as a binary glTF: what another DCC tool would hand
+    over."""
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -122,7 +130,10 @@ def corner_glb(path):
     _box("ground", (2.5, 2.5, 0.04), (0, 0, -0.02), grey)
     _box("backwall", (2.5, 0.08, 1.6), (0, -1.25, 0.8), blue)
     _box("bench", (1.0, 0.5, 0.4), (0.5, -0.9, 0.2), _material("bench_wood", (0.6, 0.45, 0.3), roughness=0.6))
-    _box("block", (0.15, 0.15, 0.15), (-0.3, 0.2, 0.075), _material("green", (0.2, 0.5, 0.25), roughness=0.6))
+    block = _box("block", (0.15, 0.15, 0.15), (-0.3, 0.2, 0.075), _material("green", (0.2, 0.5, 0.25), roughness=0.6))
+    knob = _box("knob", (0.04, 0.04, 0.03), (-0.3, 0.2, 0.165), _material("black", (0.03, 0.03, 0.03), roughness=0.4))
+    knob.parent = block  # a child: moves with the block, carries its mask id
+    knob.matrix_parent_inverse = block.matrix_world.inverted()
     bpy.ops.mesh.primitive_cone_add(vertices=4, radius1=0.1, radius2=0.0, depth=0.14, location=(0.4, 0.3, 0.07))
     pyr = bpy.context.active_object
     pyr.name = "pyramid"

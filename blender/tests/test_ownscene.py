@@ -228,6 +228,27 @@ def test_the_scenes_own_cameras_are_used_with_their_intrinsics(tmp_path):
             assert (mask > 0).any(), "the objects are arranged where the scene's camera sees them"
 
 
+def test_cameras_from_a_file_and_a_collection_of_movables(own, tmp_path):
+    """--cameras FILE renders from the file's frames (here the first dataset's own training
+    frames, intrinsics included); --movable with a collection's name takes its objects."""
+    if own["kind"] != "blend":
+        pytest.skip("one scene is enough")
+    first = own["json"]["states"][0]["frames"]
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps({"frames": first}))
+    out = tmp_path / "ds"
+    run_script("generate.py", "--scene", own["scene"], "--movable", "crate,can,Toys", "--cameras", cams,
+               "--res", "40x30", "--states", "1", "--relight", "1", "--spp", "1", "--out", out, "--quiet")
+    ds = json.loads((out / "dataset.json").read_text())
+    assert [o["name"] for o in ds["objects"]] == ["crate", "can", "ball", "cone"]
+    for st in ds["states"]:
+        for run_ in st.get("relight", [st]):
+            assert len(run_["frames"]) == len(first)
+            for got, want in zip(run_["frames"], first):
+                assert np.abs(np.array(got["transform_matrix"]) - np.array(want["transform_matrix"])).max() < 1e-6
+                assert all(abs(got[k] - want[k]) < 1e-6 for k in ("fl_x", "fl_y", "cx", "cy"))
+
+
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
     folder = tmp_path_factory.mktemp("bad")
