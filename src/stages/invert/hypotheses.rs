@@ -218,9 +218,11 @@ impl Rendered {
 }
 
 /// Tests every object's hypotheses and sets the winners as the inverter's starting materials
-/// (see the module doc). `surfels` are the scene's components (their materials are
-/// overwritten by the inverter's before the loop's first step, as every step does); `names`
-/// name them.
+/// (see the module doc). `surfels` are the scene's components: the inverter's current
+/// materials are written into them first, so the caller passes a scratch copy; each hypothesis
+/// then copies only the objects' surfels and shares the background's. `names` name the
+/// components. `trace` is left holding the last hypothesis' materials: `Inverter::step` sets
+/// the inverter's at its start, as it does every iteration.
 pub fn search(
     inv: &mut Inverter,
     trace: &mut TraceScene,
@@ -267,14 +269,24 @@ pub fn search(
     // one object reflects of another is second order here).
     let mut rendered: Vec<Vec<Rendered>> = Vec::new();
     for h in &hypotheses {
-        let mut hyp: Vec<Surfels> = surfels.to_vec();
-        for &c in &objects {
-            let s = &mut hyp[c];
-            s.metallic.iter_mut().for_each(|m| *m = h.metallic);
-            s.roughness.iter_mut().for_each(|r| *r = h.roughness);
-            s.base_color.iter_mut().for_each(|a| *a = [0.5; 3]);
-        }
-        let refs: Vec<&Surfels> = hyp.iter().collect();
+        // Only the objects change: copy theirs, and share the rest (the background's are most).
+        let hyp: Vec<(usize, Surfels)> = objects
+            .iter()
+            .map(|&c| {
+                let mut s = surfels[c].clone();
+                s.metallic.iter_mut().for_each(|m| *m = h.metallic);
+                s.roughness.iter_mut().for_each(|r| *r = h.roughness);
+                s.base_color.iter_mut().for_each(|a| *a = [0.5; 3]);
+                (c, s)
+            })
+            .collect();
+        let refs: Vec<&Surfels> = (0..surfels.len())
+            .map(|c| {
+                hyp.iter()
+                    .find(|(k, _)| *k == c)
+                    .map_or(&surfels[c], |(_, s)| s)
+            })
+            .collect();
         trace.set_materials(&refs);
         let mut per_object: Vec<Rendered> = (0..surfels.len())
             .map(|_| Rendered { rows: Vec::new() })
