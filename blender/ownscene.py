@@ -478,9 +478,14 @@ class OwnScene:
         return next(mv for mv in self.movables if mv.name == name)
 
     def detect_symmetries(self, mv, tmp, rng, declared=None) -> list[dict]:
-        """The rotations about the vertical through the surface centroid that map the object's
-        surface and appearance onto themselves: the first of CANDIDATE_ORDERS that passes both
-        checks (``lfsymmetry``), or the ``declared`` order, which must pass them."""
+        """The object's rotational symmetries through its surface centroid (which lies on every
+        axis of a symmetric object), each passing both of ``lfsymmetry``'s checks (surface and
+        albedo pass). Detected: about the vertical, the first of CANDIDATE_ORDERS that passes;
+        then about a horizontal axis (the surface's two horizontal principal directions and the
+        two commonest directions of its vertical faces' normals), the first of continuous,
+        four- and two-fold that passes: with the vertical one that generates a ball's, a box's or
+        a cylinder's whole group. ``declared`` (an order about the vertical) is checked instead,
+        and refused when it fails."""
         import bpy
 
         verts = bl_to_yup_points(mv.verts)
@@ -488,37 +493,81 @@ class OwnScene:
         tree = lfsymmetry.surface(verts, mv.tris)
         points = lfsymmetry.samples(verts, mv.tris, 400, np.random.default_rng(rng.randrange(2**31)))
         tol = max(lfsymmetry.SURFACE_TOL, 0.01 * mv.radius)
-        axis = [0.0, 1.0, 0.0]
-        candidates = CANDIDATE_ORDERS if declared is None else (declared,)
+        offset = [0.0, round(float(mv.centroid[2] - mv.zmin), 6), 0.0]
+
+        def passes(axis, order):
+            """None when the rotations pass both checks, else what failed."""
+            turns = lfsymmetry.angles(order, rng)
+            far = max(lfsymmetry.departure(points, tree, centre, axis, t) for t in turns)
+            if far >= tol:
+                return f"the surface leaves itself by {far * 1e3:.1f} mm (tolerance {tol * 1e3:.1f} mm)"
+            worst = 0.0
+            for t in turns[:1] if order == 0 else turns:
+                coverage, albedo, _covered = lfsymmetry.appearance_change(tmp, centre, axis, t,
+                                                                         scale=max(mv.radius, 0.02) / 0.15)
+                worst = max(worst, coverage, albedo)
+            if worst > lfsymmetry.APPEARANCE_TOL:
+                return f"its albedo changes on {worst:.0%} of its pixels (a texture breaks the symmetry)"
+            return None
+
         hidden = {}
         for ob in bpy.data.objects:
             if ob.type in GEOMETRY_TYPES and ob not in mv.objects:
                 hidden[ob.name] = ob.hide_render
                 ob.hide_render = True
         try:
-            for order in candidates:
-                turns = lfsymmetry.angles(order, rng)
-                far = max(lfsymmetry.departure(points, tree, centre, axis, t) for t in turns)
-                if far >= tol:
-                    if declared is not None:
-                        raise UserError(f"--symmetry {mv.name}:{declared}: turned about its vertical axis the surface "
-                                        f"leaves itself by {far * 1e3:.1f} mm (tolerance {tol * 1e3:.1f} mm)")
-                    continue
-                worst = 0.0
-                for t in turns[:1] if order == 0 else turns:
-                    coverage, albedo, covered = lfsymmetry.appearance_change(tmp, centre, axis, t,
-                                                                           scale=max(mv.radius, 0.02) / 0.15)
-                    worst = max(worst, coverage, albedo)
-                if worst <= lfsymmetry.APPEARANCE_TOL:
-                    offset = [0.0, round(float(mv.centroid[2] - mv.zmin), 6), 0.0]
-                    return [{"axis": [0, 1, 0], "order": order, "offset": offset}]
-                if declared is not None:
-                    raise UserError(f"--symmetry {mv.name}:{declared}: turned about its vertical axis its albedo "
-                                    f"changes on {worst:.0%} of its pixels (a texture breaks the symmetry)")
+            up = [0.0, 1.0, 0.0]
+            if declared is not None:
+                failed = passes(up, declared)
+                if failed:
+                    raise UserError(f"--symmetry {mv.name}:{declared}: turned about its vertical axis {failed}")
+                return [{"axis": [0, 1, 0], "order": declared, "offset": offset}]
+            found = []
+            for order in CANDIDATE_ORDERS:
+                if passes(up, order) is None:
+                    found.append({"axis": [0, 1, 0], "order": order, "offset": offset})
+                    break
+            for axis in horizontal_axes(verts, mv.tris):
+                order = next((o for o in (0, 4, 2) if passes(axis, o) is None), None)
+                if order is not None:
+                    found.append({"axis": [round(float(x), 6) + 0.0 for x in axis], "order": order,
+                                  "offset": offset})
+                    break
+            return found
         finally:
             for name, h in hidden.items():
                 bpy.data.objects[name].hide_render = h
-        return []
+
+
+def horizontal_axes(verts, tris) -> list[np.ndarray]:
+    """Candidate horizontal symmetry axes (Y-up unit vectors, y = 0): the two principal
+    directions of the surface's horizontal extent (area-weighted triangle centres), then the
+    two commonest directions (by area, modulo a half turn) of its vertical faces' normals; the
+    same direction (within 2°) once."""
+    t = np.asarray(tris)
+    a, b, c = verts[t[:, 0]], verts[t[:, 1]], verts[t[:, 2]]
+    cross = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    mid = (a + b + c) / 3
+    xz = mid[:, [0, 2]] - (area[:, None] * mid[:, [0, 2]]).sum(0) / max(area.sum(), 1e-12)
+    cov = (area[:, None, None] * xz[:, :, None] * xz[:, None, :]).sum(0)
+    _, vecs = np.linalg.eigh(cov)
+    angles = [math.atan2(vecs[1, i], vecs[0, i]) for i in (1, 0)]
+    n = cross / np.maximum(2 * area[:, None], 1e-12)
+    side = np.abs(n[:, 1]) < 0.05
+    if side.any():
+        theta = np.mod(np.arctan2(n[side, 2], n[side, 0]), math.pi)
+        bins = np.round(np.degrees(theta)).astype(int) % 180
+        weight = np.bincount(bins, weights=area[side], minlength=180)
+        for k in np.argsort(weight)[::-1][:2]:
+            if weight[k] > 0:
+                angles.append(math.radians(k))
+    out = []
+    for th in angles:
+        d = np.array([math.cos(th), 0.0, math.sin(th)])
+        if all(abs(float(d @ e)) < math.cos(math.radians(2)) for e in out):
+            out.append(d)
+    return out
 
 
 # ----------------------------------------------------------------------------- materials

@@ -150,18 +150,24 @@ def test_lightfuse_run_completes_on_an_own_scene(own, tmp_path):
 
 def test_the_truth_recorded_is_what_the_scene_says(own):
     """Materials where they are plain Principled inputs, a note where not; the symmetries the
-    checks find (a plain cylinder, ball, cone, torus: continuous; a cube and a four-sided pyramid:
-    four-fold); the scene's lamp named as ignored."""
+    checks find (about the vertical: a plain cylinder, ball, cone, torus continuous, a cube and a
+    four-sided pyramid four-fold; about a horizontal axis: a ball continuous, a cylinder and a
+    torus upside down, nothing for a cone, a pyramid, or a block with a knob on top); the
+    scene's lamp named as ignored."""
     by = {o["name"]: o for o in own["json"]["objects"]}
     order = {o: [s["order"] for s in by[o]["symmetries"]] for o in by}
     if own["kind"] == "blend":
         assert "ceiling_lamp (point)" in own["stderr"] and "lit by environments only" in own["stderr"]
         assert "material" not in by["can"] and "Roughness" in by["can"]["material_note"]
         assert by["ball"]["material"] == {"metallic": 0.0, "roughness": 0.3}
-        assert order["can"] == [0] and order["ball"] == [0] and order["cone"] == [0]
+        assert order["can"] == [0, 2] and order["ball"] == [0, 0] and order["cone"] == [0]
     else:
         assert by["pyramid"]["material"]["metallic"] == 1.0
-        assert order["block"] == [4] and order["pyramid"] == [4] and order["ring"] == [0]
+        assert order["block"] == [4] and order["pyramid"] == [4] and order["ring"] == [0, 2]
+    for o in by.values():  # the vertical first, every axis through the same point
+        assert not o["symmetries"] or o["symmetries"][0]["axis"] == [0, 1, 0]
+        assert len({tuple(s["offset"]) for s in o["symmetries"]}) <= 1
+        assert all(abs(s["axis"][1]) < 1e-9 for s in o["symmetries"][1:])
 
 
 def test_layouts_reproduce_an_artists_poses(tmp_path):
