@@ -408,6 +408,7 @@ def _run(a, out: str, final: str, t0: float) -> None:
         return {name: rows(bl_to_yup_matrix(arr[name] @ np.linalg.inv(ref[name]))) for name, *_r in movables}
 
     tmp = make_tmpdir()
+    current_intr = intr
     states = []
     env_cache: dict = {}
     nframes = 0
@@ -448,8 +449,9 @@ def _run(a, out: str, final: str, t0: float) -> None:
                 frames = []
                 for i, (m, view_intr) in enumerate(cams):
                     cam.matrix_world = mathutils.Matrix(m.tolist())
-                    if view_intr != intr:
+                    if view_intr != current_intr:  # a preset's never differ: its camera is untouched
                         set_intrinsics(cam.data, view_intr)
+                        current_intr = view_intr
                     rel = frame_paths(run["prefix"], geo_prefix, i)
                     if r_i == 0:
                         write_geometry(out, rel, render_geometry(tmp))
