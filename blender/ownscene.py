@@ -240,6 +240,11 @@ class Movable:
         # surface centroid (the vertical symmetry axis passes through the centroid).
         self.base = np.array([self.centroid[0], self.centroid[1], self.zmin])
 
+    def foot_points(self, m) -> np.ndarray:
+        """The footprint's points (on the base, world) once the object is moved by ``m``."""
+        local = np.column_stack([self.foot + self.base[:2], np.full(len(self.foot), self.base[2])])
+        return transformed(local, m)
+
     def motion(self, x, y, z, yaw) -> np.ndarray:
         """The world rigid motion that turns the object by ``yaw`` about its centroid's vertical
         and puts its base centre at (x, y, z)."""
@@ -371,9 +376,7 @@ class OwnScene:
 
     def _stands(self, mv, m, trees, h) -> bool:
         """Every footprint ray of the object moved by ``m`` meets an upward surface at ``h``."""
-        rot = m[:3, :3]
-        for f in mv.foot:
-            p = rot @ np.array([f[0], f[1], 0.0]) + m[:3, 3] + rot @ mv.base
+        for p in mv.foot_points(m):
             hit = first_hit(trees, (p[0], p[1], h + 0.05), (0, 0, -1), 0.05 + 2 * FLAT_TOL)
             if hit is None or abs(hit[1][2] - h) > FLAT_TOL or abs(hit[2][2]) < UP_COS:
                 return False
@@ -394,10 +397,8 @@ class OwnScene:
                                     f"{PENETRATION_TOL * 1e3:.0f} mm)")
             others = [self.static] + [t for k, t in trees.items() if k != n]
             zmin = float(transformed(mv.verts, m)[:, 2].min())
-            rot = m[:3, :3]
             gaps = []
-            for f in mv.foot:
-                p = rot @ np.array([f[0], f[1], 0.0]) + m[:3, 3] + rot @ mv.base
+            for p in mv.foot_points(m):
                 hit = first_hit(others, (p[0], p[1], zmin + 0.01), (0, 0, -1), 1e3)
                 gaps.append(np.inf if hit is None else zmin - float(hit[1][2]))
             if min(gaps) > REST_TOL:
@@ -725,9 +726,11 @@ def file_cameras(path, w, h, default_intr) -> list[tuple[np.ndarray, dict]]:
 
 def visible_from(views):
     """A test of whether a world point projects inside some view (5 % margin), in front of it."""
+    world_to_camera = [(np.linalg.inv(m), intr) for m, intr in views]
+
     def test(p):
-        for m, intr in views:
-            q = np.linalg.inv(m) @ np.append(p, 1.0)  # camera looks down -Z
+        for inv, intr in world_to_camera:
+            q = inv @ np.append(p, 1.0)  # camera looks down -Z
             if q[2] >= -0.05:
                 continue
             u = intr["cx"] + intr["fl_x"] * q[0] / -q[2]
