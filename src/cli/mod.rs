@@ -74,6 +74,10 @@ pub enum Command {
     /// with the dataset's Cycles frames; writes <work>/eval/{eval.json, eval.md, report.html}
     /// and the images the report shows.
     Evaluate(EvaluateArgs),
+    /// Turn a capture made elsewhere into a LightFuse dataset: `import colmap` reads a COLMAP
+    /// sparse model and its photos (docs/real-captures.md).
+    #[command(subcommand)]
+    Import(ImportCommand),
     /// Stages 1-3 and the evaluation in order; a stage whose output is newer than its inputs
     /// is skipped, a killed run resumes from the stage's checkpoint.
     Run(RunArgs),
@@ -461,7 +465,141 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Edit(a) => edit(cli, a),
         Command::Evaluate(a) => evaluate(cli, a),
         Command::Run(a) => run_all(cli, a),
+        Command::Import(c) => import(cli, c),
     }
+}
+
+#[derive(Subcommand, Debug)]
+pub enum ImportCommand {
+    /// A COLMAP sparse model (binary or text) and its photos: states from the photos' folders,
+    /// distorted lenses resampled into pinhole images, sRGB linearised, the world turned to
+    /// +Y up and scaled to metres; writes <out>/dataset.json, import.json, images/, masks/.
+    Colmap(ImportColmapArgs),
+    /// A nerfstudio transforms.json: per-frame or shared intrinsics, camera_model, mask_path,
+    /// depth_file_path; otherwise as `import colmap` (writes depth/ too).
+    Nerfstudio(ImportNerfstudioArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ImportColmapArgs {
+    /// The sparse model folder (cameras, images, points3D as .bin or .txt; e.g. sparse/0).
+    pub model: PathBuf,
+    /// The folder the model's image names are relative to (COLMAP's --image_path).
+    #[arg(long)]
+    pub images: PathBuf,
+    /// Object-id masks: <masks>/<image name>.png, 8-bit, 0 = background, the same id for one
+    /// object in every state.
+    #[arg(long)]
+    pub masks: Option<PathBuf>,
+    #[command(flatten)]
+    pub common: ImportCommonArgs,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ImportNerfstudioArgs {
+    /// The transforms.json (paths in it are relative to its folder).
+    pub transforms: PathBuf,
+    /// Metres per stored depth unit (nerfstudio's depth_unit_scale_factor: 1e-3 for its
+    /// millimetre PNGs).
+    #[arg(long, default_value_t = 1e-3)]
+    pub depth_unit_scale: f64,
+    #[command(flatten)]
+    pub common: ImportCommonArgs,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ImportCommonArgs {
+    /// A JSON object {"<photo name>": "<state>"}; by default a photo's state is the name of
+    /// the folder holding it (state1/IMG_0001.jpg).
+    #[arg(long)]
+    pub states: Option<PathBuf>,
+    /// States held out for evaluation, comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    pub test_states: Vec<String>,
+    /// The world's up direction in the source's frame, X,Y,Z (default: the dominant
+    /// supporting plane's normal, towards the cameras).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub up: Option<[f64; 3]>,
+    /// Metres per source unit (default 1: SfM units are arbitrary, so say it).
+    #[arg(long, allow_hyphen_values = true)]
+    pub scale: Option<f64>,
+    /// The dataset folder to write (new or empty).
+    #[arg(short, long)]
+    pub out: PathBuf,
+}
+
+impl ImportCommonArgs {
+    fn options(&self, quiet: bool) -> lightfuse::io::import::ImportOptions {
+        lightfuse::io::import::ImportOptions {
+            states: self.states.clone(),
+            test_states: self.test_states.clone(),
+            up: self.up,
+            scale: self.scale,
+            out: self.out.clone(),
+            quiet,
+        }
+    }
+}
+
+fn parse_vec3(s: &str) -> std::result::Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| format!("expected X,Y,Z, found {s:?}"))?;
+    match v.as_slice() {
+        [x, y, z] => Ok([*x, *y, *z]),
+        _ => Err(format!("expected X,Y,Z, found {s:?}")),
+    }
+}
+
+fn import(cli: &Cli, c: &ImportCommand) -> Result<()> {
+    use lightfuse::io::import;
+    let (summary, common) = match c {
+        ImportCommand::Colmap(a) => (
+            import::import_colmap(&import::ColmapImport {
+                model: a.model.clone(),
+                images: a.images.clone(),
+                masks: a.masks.clone(),
+                options: a.common.options(cli.quiet),
+            })?,
+            &a.common,
+        ),
+        ImportCommand::Nerfstudio(a) => (
+            import::import_nerfstudio(&import::NerfstudioImport {
+                transforms: a.transforms.clone(),
+                depth_unit_scale: a.depth_unit_scale,
+                options: a.common.options(cli.quiet),
+            })?,
+            &a.common,
+        ),
+    };
+    if cli.json {
+        let states: Vec<_> = summary
+            .states
+            .iter()
+            .map(|(n, s, k)| serde_json::json!({"name": n, "split": s, "frames": k}))
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({"dataset": summary.dataset, "states": states,
+                "objects": summary.objects, "resampled_frames": summary.undistorted,
+                "up_source": summary.frame.up_source})
+        );
+    } else if !cli.quiet {
+        for (n, s, k) in &summary.states {
+            eprintln!("state {n} ({s}): {k} frames");
+        }
+        eprintln!(
+            "objects (mask ids): {:?}; {} frames resampled into pinhole images; up from {}",
+            summary.objects, summary.undistorted, summary.frame.up_source
+        );
+        if common.scale.is_none() {
+            eprintln!("note: no --scale: the source's units are taken as metres (LightFuse's thresholds are in metres)");
+        }
+        eprintln!("wrote {}", summary.dataset.display());
+    }
+    Ok(())
 }
 
 fn env(cli: &Cli, a: &EnvArgs) -> Result<()> {

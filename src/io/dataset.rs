@@ -11,22 +11,22 @@ use std::path::{Path, PathBuf};
 
 pub const DATASET_FORMAT: &str = "lightfuse-dataset/1";
 
-#[derive(Deserialize, Debug, Clone)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct DatasetObject {
     pub id: u32,
     pub name: String,
     /// Ground truth, evaluation only: the object's own frame (origin on its symmetry axes, e.g.
     /// the centre of its base) in the reference state's world.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_pose: Option<[[f32; 4]; 4]>,
     /// Ground truth, evaluation only: rotations about axes through one point of the object
     /// (its origin unless `offset` says otherwise) that leave its shape and appearance unchanged
     /// (in its frame), so a pose error forgives them ([`crate::eval::pose`]).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub symmetries: Vec<crate::scene::Symmetry>,
     /// Ground truth, evaluation only: one representative metallic / roughness for the object
     /// ([`ObjectMaterial`]). Absent in datasets written before generate.py recorded it.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub material: Option<ObjectMaterial>,
 }
 
@@ -43,66 +43,67 @@ pub struct ObjectMaterial {
 /// (degrees) and the scale that were *already applied* to the file. Do not apply them again.
 #[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
 pub struct EnvironmentSource {
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rotation_deg: Option<f64>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scale: Option<f64>,
 }
 
-#[derive(Deserialize, Debug, Clone)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Frame {
     /// Linear RGB EXR (channels R, G, B).
     pub file_path: String,
     /// Planar depth EXR (channel Z, metres, 0 = no hit).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub depth_file_path: Option<String>,
     /// World-space normal EXR (R, G, B = x, y, z; zero where nothing was hit).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub normal_file_path: Option<String>,
     /// 8-bit object-id PNG (0 = background, otherwise a `DatasetObject::id`).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_path: Option<String>,
     /// Ground truth, evaluation only: base colour EXR (R, G, B = the Principled base colour,
     /// scene-linear; 0 = no hit). Training never reads it ([`Dataset::albedo`]).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub albedo_file_path: Option<String>,
     #[serde(flatten)]
     pub camera: Camera,
 }
 
-#[derive(Deserialize, Debug, Clone)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Relight {
     pub environment: String,
     /// Novel-state synthesis (the paper's Table 2): this run is the test layout under that
     /// training state's own environment; None for an environment no training state saw.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub training_state: Option<String>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub frames: Vec<Frame>,
 }
 
-#[derive(Deserialize, Debug, Clone)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct DatasetState {
     pub name: String,
     pub split: String,
     /// Ground truth: the environment that lit this state, relative to the dataset root
     /// ([`Dataset::environment`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub environment: Option<String>,
     /// Ground truth provenance of `environment` (already applied to the file).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub environment_source: Option<EnvironmentSource>,
     /// Ground truth: each object's rigid transform relative to the reference state (rows).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub object_poses: BTreeMap<String, [[f32; 4]; 4]>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub frames: Vec<Frame>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub relight: Vec<Relight>,
 }
 
-#[derive(Deserialize, Debug, Clone)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Dataset {
     pub format: String,
     /// Must be "+Y".

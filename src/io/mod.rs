@@ -2,9 +2,11 @@
 //! the work folder.
 
 pub mod cameras;
+pub mod colmap;
 pub mod dataset;
 pub mod exr;
 pub mod gltf;
+pub mod import;
 pub mod layout;
 pub mod mesh;
 pub mod ply;
