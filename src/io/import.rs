@@ -23,7 +23,7 @@
 //! depth–normal self-consistency replace them.
 
 use super::colmap::lens::{Lens, LensModel, Pinhole};
-use super::colmap::{read_model, Model};
+use super::colmap::read_model;
 use super::dataset::{DatasetObject, DatasetState, Frame, DATASET_FORMAT};
 use crate::error::{Error, Result};
 use crate::scene::Camera;
@@ -98,6 +98,9 @@ struct Capture {
     source: &'static str,
     shots: Vec<Shot>,
     points: Vec<DVec3>,
+    /// Per point, the shots (indices) that see it, when the source keeps tracks (COLMAP), with
+    /// the file they came from: the one-world check.
+    tracks: Option<(PathBuf, Vec<Vec<usize>>)>,
     depth_unit_scale: f64,
     provenance: serde_json::Value,
 }
@@ -155,6 +158,17 @@ fn colmap_capture(a: &ColmapImport) -> Result<Capture> {
             "expected at least one registered image",
         ));
     }
+    let index: BTreeMap<u32, usize> = model
+        .images
+        .keys()
+        .enumerate()
+        .map(|(k, id)| (*id, k))
+        .collect();
+    let tracks = model
+        .points
+        .iter()
+        .map(|p| p.track.iter().map(|(im, _)| index[im]).collect())
+        .collect();
     let shots = model
         .images
         .values()
@@ -177,25 +191,23 @@ fn colmap_capture(a: &ColmapImport) -> Result<Capture> {
         source: "colmap",
         shots,
         points: model.points.iter().map(|p| DVec3::from(p.xyz)).collect(),
+        tracks: Some((model.file("points3D"), tracks)),
         depth_unit_scale: 1.0,
         provenance: serde_json::json!({"model": a.model, "images": a.images, "masks": a.masks,
             "points": model.points.len()}),
     })
 }
 
-/// The per-state check of [`colmap_capture`], once states are known.
-fn check_one_world(model: &Model, state_of_image: &BTreeMap<u32, String>) -> Result<()> {
-    let names: BTreeSet<&String> = state_of_image.values().collect();
+/// One world: every state shares a point with another state (a point whose track has shots of
+/// two states). Without any, the states were registered apart and their frames are unrelated.
+fn check_one_world(file: &Path, tracks: &[Vec<usize>], states: &[String]) -> Result<()> {
+    let names: BTreeSet<&String> = states.iter().collect();
     if names.len() < 2 {
         return Ok(());
     }
     let mut shared: BTreeMap<&String, usize> = names.iter().map(|n| (*n, 0)).collect();
-    for p in &model.points {
-        let seen: BTreeSet<&String> = p
-            .track
-            .iter()
-            .filter_map(|(i, _)| state_of_image.get(i))
-            .collect();
+    for track in tracks {
+        let seen: BTreeSet<&String> = track.iter().map(|&k| &states[k]).collect();
         if seen.len() >= 2 {
             for s in seen {
                 *shared.get_mut(s).unwrap() += 1;
@@ -204,7 +216,7 @@ fn check_one_world(model: &Model, state_of_image: &BTreeMap<u32, String>) -> Res
     }
     if let Some((s, _)) = shared.iter().find(|(_, &n)| n == 0) {
         return Err(Error::invalid(
-            model.file("points3D"),
+            file,
             "tracks",
             format!(
                 "state {s:?} shares no triangulated point with the other states: the states were \
@@ -403,6 +415,7 @@ fn nerfstudio_capture(a: &NerfstudioImport) -> Result<Capture> {
         source: "nerfstudio",
         shots,
         points: Vec::new(),
+        tracks: None,
         depth_unit_scale: a.depth_unit_scale,
         provenance: serde_json::json!({"transforms": file, "depth_unit_scale": a.depth_unit_scale}),
     })
@@ -773,22 +786,7 @@ fn read_state_map(file: &Path) -> Result<(PathBuf, BTreeMap<String, String>)> {
 
 /// `lightfuse import colmap`.
 pub fn import_colmap(a: &ColmapImport) -> Result<ImportSummary> {
-    let capture = colmap_capture(a)?;
-    // One world: checked per state once the states are known (the model is read again: the
-    // check needs its tracks, which a Capture does not keep).
-    let model = read_model(&a.model)?;
-    let map = a
-        .options
-        .states
-        .as_deref()
-        .map(read_state_map)
-        .transpose()?;
-    let mut by_image = BTreeMap::new();
-    for (im, shot) in model.images.values().zip(&capture.shots) {
-        by_image.insert(im.id, state_of(map.as_ref(), shot)?);
-    }
-    check_one_world(&model, &by_image)?;
-    write_dataset(capture, &a.options)
+    write_dataset(colmap_capture(a)?, &a.options)
 }
 
 /// `lightfuse import nerfstudio`.
@@ -862,6 +860,9 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
         return Err(Error::Usage(
             "--test-states: every state is held out; at least one must train".into(),
         ));
+    }
+    if let Some((file, tracks)) = &capture.tracks {
+        check_one_world(file, tracks, &states)?;
     }
     // Two photos written to one file would lose one of them.
     let mut taken: BTreeMap<String, &str> = BTreeMap::new();
