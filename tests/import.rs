@@ -487,6 +487,25 @@ fn bad_captures_are_refused_in_one_line() {
         std::fs::read_to_string(c.root().join("dataset/notes.txt")).unwrap(),
         "mine"
     );
+    // A --states file without a photo, and one whose state would be a path out of the output.
+    let c = capture(&["a", "b"]);
+    let map = c.root().join("map.json");
+    let names: Vec<String> = c.images.iter().map(|i| i.0.clone()).collect();
+    let mut m: serde_json::Map<String, serde_json::Value> =
+        names.iter().map(|n| (n.clone(), "x".into())).collect();
+    m.remove(&names[2]);
+    std::fs::write(&map, serde_json::to_vec(&m).unwrap()).unwrap();
+    refused(
+        &c.import(&["--states", map.to_str().unwrap()]),
+        &["map.json", &names[2], "expected this photo's state"],
+    );
+    m.insert(names[2].clone(), "../escape".into());
+    std::fs::write(&map, serde_json::to_vec(&m).unwrap()).unwrap();
+    refused(
+        &c.import(&["--states", map.to_str().unwrap()]),
+        &["map.json", "expected a state name", "../escape"],
+    );
+    assert!(!c.root().join("escape").exists());
     // Bad --up / --scale.
     refused(&c.import(&["--up", "0,0,0"]), &["--up"]);
     refused(&c.import(&["--scale", "-1"]), &["--scale"]);

@@ -424,13 +424,27 @@ fn nerfstudio_capture(a: &NerfstudioImport) -> Result<Capture> {
 /// The state of a shot: its `--states` entry, or the name of the folder holding the photo.
 fn state_of(map: Option<&(PathBuf, BTreeMap<String, String>)>, shot: &Shot) -> Result<String> {
     if let Some((file, map)) = map {
-        return map.get(&shot.name).cloned().ok_or_else(|| {
+        let state = map.get(&shot.name).ok_or_else(|| {
             Error::invalid(
                 file,
                 &shot.name,
                 "expected this photo's state (the source names the photo)",
             )
-        });
+        })?;
+        // A state is a folder of the output: one plain name, never a path out of it.
+        let plain = !state.is_empty()
+            && state != "."
+            && state != ".."
+            && !state.contains(['/', '\\'])
+            && !state.contains('\0');
+        if !plain {
+            return Err(Error::invalid(
+                file,
+                &shot.name,
+                format!("expected a state name (no '/' or '\\', not '.' or '..'), found {state:?}"),
+            ));
+        }
+        return Ok(state.clone());
     }
     let folder = Path::new(&shot.name)
         .parent()
