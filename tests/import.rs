@@ -258,7 +258,7 @@ fn colmap_poses_become_dataset_cameras_that_see_the_same_pixels() {
         names,
         [("state0", "train"), ("state1", "train"), ("test", "test")]
     );
-    let mut checked = 0;
+    let (mut checked, mut exact) = (0, 0);
     for (k, (name, cam, q, t)) in c.images.iter().enumerate() {
         let state = &ds.states[k / 2];
         let frame = &state.frames[k % 2];
@@ -269,6 +269,14 @@ fn colmap_poses_become_dataset_cameras_that_see_the_same_pixels() {
         );
         let lens = c.lens(*cam);
         let pin = lens.pinhole().unwrap();
+        let sparse = ds
+            .frame_planes(
+                frame.sparse_depth_file_path.as_deref().unwrap(),
+                &["Z", "C"],
+                &frame.camera,
+            )
+            .unwrap();
+        let mut nearest = vec![0.0f32; (W * H) as usize];
         for p in &c.points {
             let pc = *q * *p + *t;
             // COLMAP's pixel in the pinhole image: the pinhole projection with pin's intrinsics.
@@ -283,7 +291,28 @@ fn colmap_poses_become_dataset_cameras_that_see_the_same_pixels() {
                 "{name}: {got:?} vs {want:?}"
             );
             assert!((z as f64 - scale * pc.z).abs() < 1e-4, "depth in metres");
+            // The nearest point landing in each pixel, as the sparse depth should hold it.
+            let i = got[1] as usize * W as usize + got[0] as usize;
+            if nearest[i] == 0.0 || z < nearest[i] {
+                nearest[i] = z;
+            }
             checked += 1;
+        }
+        // The sparse depth is exactly that, with confidence 1 / (1 + 0.5²) for the model's
+        // ERROR of 0.5 px wherever a point landed, and 0 elsewhere.
+        for i in 0..nearest.len() {
+            let (sz, sc) = (sparse[0][i], sparse[1][i]);
+            assert!(
+                (sz - nearest[i]).abs() < 1e-4,
+                "{name} pixel {i}: {sz} vs {}",
+                nearest[i]
+            );
+            let want_c = if nearest[i] > 0.0 { 0.8 } else { 0.0 };
+            assert!(
+                (sc - want_c).abs() < 1e-6,
+                "{name} pixel {i}: confidence {sc}"
+            );
+            exact += usize::from(nearest[i] > 0.0);
         }
         // The camera is above the floor, which is at y = 0.
         assert!(
@@ -292,6 +321,23 @@ fn colmap_poses_become_dataset_cameras_that_see_the_same_pixels() {
         );
     }
     assert_eq!(checked, 6 * 60);
+    // 60 points in a ~20 px patch of each photo: some share a pixel.
+    assert!(exact > 200, "only {exact} pixels of 6 photos hold a point");
+    // What the import writes is a dataset the schema accepts.
+    let schema: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas/dataset.schema.json"))
+            .unwrap(),
+    )
+    .unwrap();
+    let written: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(c.root().join("dataset/dataset.json")).unwrap())
+            .unwrap();
+    let validator = jsonschema::validator_for(&schema).unwrap();
+    let errors: Vec<String> = validator
+        .iter_errors(&written)
+        .map(|e| e.to_string())
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
     for p in c.points.iter().filter(|p| (p.y - 0.3).abs() < 1e-12) {
         assert!(
             to_world(*p).y.abs() < 1e-6,

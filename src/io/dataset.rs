@@ -61,6 +61,11 @@ pub struct Frame {
     /// World-space normal EXR (R, G, B = x, y, z; zero where nothing was hit).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub normal_file_path: Option<String>,
+    /// Sparse planar depth of an imported capture (`lightfuse import colmap`): EXR with `Z`
+    /// (metres, 0 = no point at this pixel) and `C` (confidence in (0, 1], from the point's
+    /// reprojection error), the SfM points seen in this photo projected into it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sparse_depth_file_path: Option<String>,
     /// 8-bit object-id PNG (0 = background, otherwise a `DatasetObject::id`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_path: Option<String>,

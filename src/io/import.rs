@@ -99,8 +99,10 @@ struct Capture {
     shots: Vec<Shot>,
     points: Vec<DVec3>,
     /// Per point, the shots (indices) that see it, when the source keeps tracks (COLMAP), with
-    /// the file they came from: the one-world check.
+    /// the file they came from: the one-world check and each photo's sparse depth.
     tracks: Option<(PathBuf, Vec<Vec<usize>>)>,
+    /// Per point, its mean reprojection error in pixels (COLMAP's `ERROR`), beside `tracks`.
+    point_errors: Vec<f64>,
     depth_unit_scale: f64,
     provenance: serde_json::Value,
 }
@@ -192,6 +194,7 @@ fn colmap_capture(a: &ColmapImport) -> Result<Capture> {
         shots,
         points: model.points.iter().map(|p| DVec3::from(p.xyz)).collect(),
         tracks: Some((model.file("points3D"), tracks)),
+        point_errors: model.points.iter().map(|p| p.error).collect(),
         depth_unit_scale: 1.0,
         provenance: serde_json::json!({"model": a.model, "images": a.images, "masks": a.masks,
             "points": model.points.len()}),
@@ -416,6 +419,7 @@ fn nerfstudio_capture(a: &NerfstudioImport) -> Result<Capture> {
         shots,
         points: Vec::new(),
         tracks: None,
+        point_errors: Vec::new(),
         depth_unit_scale: a.depth_unit_scale,
         provenance: serde_json::json!({"transforms": file, "depth_unit_scale": a.depth_unit_scale}),
     })
@@ -785,6 +789,37 @@ fn out_rel(dir: &str, state: &str, name: &str, ext: &str) -> String {
     format!("{dir}/{state}/{stem}.{ext}")
 }
 
+/// The sparse depth of one photo: each SfM point it sees, in the dataset's world, projected
+/// through its dataset camera; `Z` its planar depth in metres at the pixel it lands in (the
+/// nearest when two land in one), `C` its confidence `1 / (1 + e²)` for a mean reprojection
+/// error of `e` pixels (COLMAP's `ERROR`: 1 for an exact point, ½ at one pixel). Both 0 where
+/// no point lands. This is the paper's depth term's `C_v` for a capture without depth sensors.
+fn sparse_depth(
+    camera: &Camera,
+    seen: &[usize],
+    capture: &Capture,
+    frame: &WorldFrame,
+) -> (Vec<f32>, Vec<f32>) {
+    let (w, h) = (camera.w as usize, camera.h as usize);
+    let (mut z, mut c) = (vec![0.0f32; w * h], vec![0.0f32; w * h]);
+    for &p in seen {
+        let x = frame.point(capture.points[p]);
+        let Some((px, depth)) = camera.project([x.x as f32, x.y as f32, x.z as f32]) else {
+            continue;
+        };
+        if !(px[0] >= 0.0 && px[1] >= 0.0 && (px[0] as usize) < w && (px[1] as usize) < h) {
+            continue;
+        }
+        let i = px[1] as usize * w + px[0] as usize;
+        if z[i] == 0.0 || depth < z[i] {
+            let e = capture.point_errors[p];
+            z[i] = depth;
+            c[i] = (1.0 / (1.0 + e * e)) as f32;
+        }
+    }
+    (z, c)
+}
+
 /// Reads the `--states` file: a JSON object of photo name to state name.
 fn read_state_map(file: &Path) -> Result<(PathBuf, BTreeMap<String, String>)> {
     let bytes = std::fs::read(file).map_err(|e| Error::io(file, e))?;
@@ -840,10 +875,10 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
             ));
         }
     }
-    // A new or empty folder, or what an interrupted import left (images/, masks/, depth/ and
-    // no dataset.json yet): nothing else is ever overwritten.
+    // A new or empty folder, or what an interrupted import left (images/, masks/, depth/,
+    // sparse_depth/ and no dataset.json yet): nothing else is ever overwritten.
     if let Ok(it) = std::fs::read_dir(&o.out) {
-        let ours = |n: &str| matches!(n, "images" | "masks" | "depth");
+        let ours = |n: &str| matches!(n, "images" | "masks" | "depth" | "sparse_depth");
         if let Some(e) = it
             .filter_map(|e| e.ok())
             .find(|e| !ours(&e.file_name().to_string_lossy()))
@@ -895,12 +930,21 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
     }
     let scale = o.scale.unwrap_or(1.0);
     let frame = world_frame(&capture.shots, &capture.points, o.up, scale);
+    // Each shot's points (index into `capture.points`), for its sparse depth.
+    let mut seen_by: Vec<Vec<usize>> = vec![Vec::new(); capture.shots.len()];
+    if let Some((_, tracks)) = &capture.tracks {
+        for (p, track) in tracks.iter().enumerate() {
+            for &k in track {
+                seen_by[k].push(p);
+            }
+        }
+    }
     let progress = crate::progress::Progress::new(o.quiet, capture.shots.len() as u64, "import");
     let mut frames: BTreeMap<String, Vec<(String, Frame)>> = BTreeMap::new();
     let mut ids: BTreeSet<u8> = BTreeSet::new();
     let mut cameras = serde_json::Map::new();
     let mut files = super::AtomicFiles::new();
-    for (shot, st) in capture.shots.iter().zip(&states) {
+    for (k, (shot, st)) in capture.shots.iter().zip(&states).enumerate() {
         let lens = &shot.lens;
         let pin = lens.pinhole().ok_or_else(|| {
             Error::invalid(&shot.lens_in.0, format!("{}.params", shot.lens_in.1), "expected a lens whose border can be undistorted (this distortion folds over within the image)")
@@ -990,6 +1034,13 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
             depth_file_path = Some(rel);
         }
         let camera = dataset_camera(shot, &pin, &frame);
+        let mut sparse_depth_file_path = None;
+        if capture.tracks.is_some() {
+            let (z, c) = sparse_depth(&camera, &seen_by[k], &capture, &frame);
+            let rel = out_rel("sparse_depth", st, &shot.name, "exr");
+            super::exr::write_channels(&planes(&["C", "Z"], vec![c, z]), &o.out.join(&rel))?;
+            sparse_depth_file_path = Some(rel);
+        }
         cameras.insert(
             shot.name.clone(),
             serde_json::json!({
@@ -1003,6 +1054,7 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
                 file_path,
                 depth_file_path,
                 normal_file_path: None,
+                sparse_depth_file_path,
                 mask_path,
                 albedo_file_path: None,
                 camera,
