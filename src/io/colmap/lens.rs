@@ -91,6 +91,21 @@ impl LensModel {
         self.row().3
     }
 
+    /// True for the models with one focal length `f` (parameters `f, cx, cy, ...`); the others
+    /// have `fx, fy, cx, cy, ...`.
+    fn one_focal_length(self) -> bool {
+        matches!(
+            self,
+            LensModel::SimplePinhole
+                | LensModel::SimpleRadial
+                | LensModel::Radial
+                | LensModel::SimpleRadialFisheye
+                | LensModel::RadialFisheye
+                | LensModel::SimpleDivision
+                | LensModel::SimpleFisheye
+        )
+    }
+
     /// Every model name COLMAP defines, for error messages.
     pub fn names() -> String {
         MODELS.iter().map(|m| m.2).collect::<Vec<_>>().join(", ")
@@ -127,30 +142,16 @@ impl Lens {
     /// (fx, fy, cx, cy) of the model's parameters. Every model but EQUIRECTANGULAR has them.
     fn intrinsics(&self) -> (f64, f64, f64, f64) {
         let p = &self.params;
-        match self.model {
-            LensModel::SimplePinhole
-            | LensModel::SimpleRadial
-            | LensModel::Radial
-            | LensModel::SimpleRadialFisheye
-            | LensModel::RadialFisheye
-            | LensModel::SimpleDivision
-            | LensModel::SimpleFisheye => (p[0], p[0], p[1], p[2]),
-            _ => (p[0], p[1], p[2], p[3]),
+        if self.model.one_focal_length() {
+            (p[0], p[0], p[1], p[2])
+        } else {
+            (p[0], p[1], p[2], p[3])
         }
     }
 
-    /// The first distortion parameter's index.
+    /// The distortion parameters: those after the focal length(s) and principal point.
     fn extra(&self) -> &[f64] {
-        let k = match self.model {
-            LensModel::SimplePinhole
-            | LensModel::SimpleRadial
-            | LensModel::Radial
-            | LensModel::SimpleRadialFisheye
-            | LensModel::RadialFisheye
-            | LensModel::SimpleDivision
-            | LensModel::SimpleFisheye => 3,
-            _ => 4,
-        };
+        let k = if self.model.one_focal_length() { 3 } else { 4 };
         &self.params[k.min(self.params.len())..]
     }
 

@@ -221,6 +221,9 @@ struct Bytes<'a> {
 }
 
 impl<'a> Bytes<'a> {
+    fn new(data: &'a [u8], file: &'a Path) -> Self {
+        Bytes { data, at: 0, file }
+    }
     fn take(&mut self, n: usize, field: &dyn Fn() -> String) -> Result<&'a [u8]> {
         if self.data.len() - self.at < n {
             return Err(Error::invalid(
@@ -310,11 +313,7 @@ fn lens_model(file: &Path, field: &str, id: Option<i32>, name: Option<&str>) -> 
 
 pub fn read_cameras_bin(path: &Path) -> Result<BTreeMap<u32, Lens>> {
     let data = read_bytes(path)?;
-    let mut b = Bytes {
-        data: &data,
-        at: 0,
-        file: path,
-    };
+    let mut b = Bytes::new(&data, path);
     let n = b.count(24, &|| "num_cameras".into())?;
     let mut out = BTreeMap::new();
     for i in 0..n {
@@ -364,11 +363,7 @@ fn lens_from(
 
 pub fn read_images_bin(path: &Path) -> Result<BTreeMap<u32, ColmapImage>> {
     let data = read_bytes(path)?;
-    let mut b = Bytes {
-        data: &data,
-        at: 0,
-        file: path,
-    };
+    let mut b = Bytes::new(&data, path);
     let n = b.count(64, &|| "num_reg_images".into())?;
     let mut out = BTreeMap::new();
     for i in 0..n {
@@ -413,11 +408,7 @@ pub fn read_images_bin(path: &Path) -> Result<BTreeMap<u32, ColmapImage>> {
 
 pub fn read_points_bin(path: &Path) -> Result<Vec<ColmapPoint>> {
     let data = read_bytes(path)?;
-    let mut b = Bytes {
-        data: &data,
-        at: 0,
-        file: path,
-    };
+    let mut b = Bytes::new(&data, path);
     let n = b.count(51, &|| "num_points3D".into())?;
     let mut out = Vec::with_capacity(n);
     for i in 0..n {
