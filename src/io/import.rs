@@ -638,7 +638,7 @@ fn read_photo(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
         return Err(Error::invalid(
             path,
             "file",
-            "expected the photo here (the COLMAP model names it)",
+            "expected the photo here (the capture names it)",
         ));
     }
     let img = open_image(path)
@@ -705,27 +705,41 @@ fn bilinear(img: &[[f32; 3]], w: u32, h: u32, p: [f64; 2]) -> [f32; 3] {
     out
 }
 
-/// Resamples a photo of `lens` into the pinhole image `pin` (the pixel itself for a pinhole
-/// lens). `sample` reads the photo at a pixel position.
+/// Per pixel of a pinhole image, where in the photo it comes from ([`source_map`]).
+type SourceMap = Vec<[f64; 2]>;
+
+/// Where in the photo each pixel of the pinhole image `pin` comes from (row-major, pixel
+/// positions with centres at +0.5), or None for a pinhole lens, whose photo is copied. Computed
+/// once per camera: every photo of it, and its mask and depth, share the map.
+fn source_map(lens: &Lens, pin: &Pinhole) -> Option<SourceMap> {
+    if lens.is_pinhole() {
+        return None;
+    }
+    let w = pin.width as usize;
+    Some(
+        (0..w * pin.height as usize)
+            .into_par_iter()
+            .map(|i| {
+                let px = [(i % w) as f64 + 0.5, (i / w) as f64 + 0.5];
+                // Inside the photo by construction of `pin` (Lens::pinhole); clamped at the edge.
+                lens.source_pixel(pin, px).unwrap_or(px)
+            })
+            .collect(),
+    )
+}
+
+/// A photo (or its mask, or its depth) resampled through `map` ([`source_map`]): `sample`
+/// reads it at a pixel position; without a map, `direct` copies pixel `i`.
 fn resample<T: Copy + Send>(
-    lens: &Lens,
-    pin: &Pinhole,
+    map: Option<&[[f64; 2]]>,
+    n: usize,
     sample: impl Fn([f64; 2]) -> T + Sync,
     direct: impl Fn(usize) -> T + Sync,
 ) -> Vec<T> {
-    let (w, h) = (pin.width as usize, pin.height as usize);
-    (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            if lens.is_pinhole() {
-                return direct(i);
-            }
-            let px = [(i % w) as f64 + 0.5, (i / w) as f64 + 0.5];
-            // Inside the photo by construction of `pin` (Lens::pinhole); clamped at the edge.
-            let s = lens.source_pixel(pin, px).unwrap_or(px);
-            sample(s)
-        })
-        .collect()
+    match map {
+        Some(m) => m.par_iter().map(|&s| sample(s)).collect(),
+        None => (0..n).into_par_iter().map(&direct).collect(),
+    }
 }
 
 /// A depth image as planar depth in stored units: a 16- or 8-bit single-channel PNG
@@ -944,11 +958,28 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
     let mut ids: BTreeSet<u8> = BTreeSet::new();
     let mut cameras = serde_json::Map::new();
     let mut files = super::AtomicFiles::new();
+    // One pinhole camera and source map per distinct lens (photos of one camera share them).
+    let mut lenses: Vec<(Lens, Pinhole, Option<SourceMap>)> = Vec::new();
     for (k, (shot, st)) in capture.shots.iter().zip(&states).enumerate() {
         let lens = &shot.lens;
-        let pin = lens.pinhole().ok_or_else(|| {
-            Error::invalid(&shot.lens_in.0, format!("{}.params", shot.lens_in.1), "expected a lens whose border can be undistorted (this distortion folds over within the image)")
-        })?;
+        let at_lens = match lenses.iter().position(|(l, _, _)| l == lens) {
+            Some(i) => i,
+            None => {
+                let pin = lens.pinhole().ok_or_else(|| {
+                    Error::invalid(
+                        &shot.lens_in.0,
+                        format!("{}.params", shot.lens_in.1),
+                        "expected a lens whose border can be undistorted (this distortion folds \
+                         over within the image)",
+                    )
+                })?;
+                let map = source_map(lens, &pin);
+                lenses.push((lens.clone(), pin, map));
+                lenses.len() - 1
+            }
+        };
+        let (_, pin, map) = &lenses[at_lens];
+        let (pin, map) = (*pin, map.as_deref());
         let (w, h, px) = read_photo(&shot.photo)?;
         if (w, h) != (lens.width, lens.height) {
             return Err(Error::invalid(
@@ -968,7 +999,7 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
             let y = (s[1].floor().max(0.0) as usize).min(h as usize - 1);
             y * w as usize + x
         };
-        let rgb = resample(lens, &pin, |s| bilinear(&px, w, h, s), |i| px[i]);
+        let rgb = resample(map, px.len(), |s| bilinear(&px, w, h, s), |i| px[i]);
         let file_path = out_rel("images", st, &shot.name, "exr");
         let planes = |names: &[&str], v: Vec<Vec<f32>>| super::exr::Channels {
             width: w as usize,
@@ -990,7 +1021,7 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
                     format!("expected {w}x{h}, the photo's size, found {mw}x{mh}"),
                 ));
             }
-            let out = resample(lens, &pin, |s| m[at(s)], |i| m[i]);
+            let out = resample(map, px.len(), |s| m[at(s)], |i| m[i]);
             ids.extend(out.iter().copied().filter(|&v| v != 0));
             let rel = out_rel("masks", st, &shot.name, "png");
             let mut png = std::io::Cursor::new(Vec::new());
@@ -1014,7 +1045,7 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
             // Planar depth is the point's distance along the optical axis, which resampling
             // into the pinhole image does not change; only the units do.
             let k = (capture.depth_unit_scale * scale) as f32;
-            let out: Vec<f32> = resample(lens, &pin, |s| d[at(s)], |i| d[i])
+            let out: Vec<f32> = resample(map, px.len(), |s| d[at(s)], |i| d[i])
                 .into_iter()
                 .map(|z| z * k)
                 .collect();
