@@ -7,9 +7,9 @@
 //! order so that every tile's slots are read forwards; a third, in input order, carries each
 //! sum through the projection to the surfel's parameters and its placement.
 
-use super::forward::{clip, row_bits, set_bits, tile_pixels, PREFETCH_AHEAD};
+use super::forward::{clip, row_bits, tile_pixels, PREFETCH_AHEAD};
 use super::project::prefetch;
-use super::project::{facing_sign, hit, placement_frame, world_surfel, CULLED};
+use super::project::{facing_sign, placement_frame, row_hits, world_surfel, CULLED};
 use super::{sh, Forward, Gradients, ImageGrad, SurfelGrads, FILTER_INV_VARIANCE};
 use super::{TILE, TILE_PIXELS};
 use crate::kernel::composite::Back;
@@ -237,13 +237,8 @@ fn backward_tile(f: &Forward, grad: &ImageGrad, tile: usize, slots: &mut [[f32; 
         for y in sy0..sy1 {
             let v = y as f32 + 0.5;
             let r = (y - y0) as usize;
-            for bit in set_bits(open[r] & cols) {
-                let x = x0 + bit;
+            for (bit, u, h) in row_hits(s, x0, v, open[r] & cols) {
                 let p = r * TILE as usize + bit as usize;
-                let u = x as f32 + 0.5;
-                let Some(h) = hit(s, u, v) else {
-                    continue;
-                };
                 let q = &pg[p];
                 let gdot = q.color[0] * s.color[0]
                     + q.color[1] * s.color[1]

@@ -2,7 +2,7 @@
 //! depth-sorted list, surfel by surfel over the tile's pixels, so a surfel is read once per tile
 //! and the per-pixel state (256 pixels) stays in L1.
 
-use super::project::{hit, prefetch, Bins, Splat, View};
+use super::project::{prefetch, row_hits, Bins, Splat, View};
 use super::{SplatImage, TILE, TILE_PIXELS, T_MIN};
 use rayon::prelude::*;
 
@@ -106,18 +106,6 @@ pub(crate) fn row_bits(x0: u32, sx0: u32, sx1: u32) -> u32 {
     ((1u32 << b) - 1) & !((1u32 << a) - 1)
 }
 
-/// The set bits of `m`, lowest first (the columns of a tile row still to visit).
-#[inline]
-pub(crate) fn set_bits(mut m: u32) -> impl Iterator<Item = u32> {
-    std::iter::from_fn(move || {
-        (m != 0).then(|| {
-            let bit = m.trailing_zeros();
-            m &= m - 1;
-            bit
-        })
-    })
-}
-
 fn forward_tile(
     view: &View,
     splats: &[Splat],
@@ -151,12 +139,8 @@ fn forward_tile(
         for y in sy0..sy1 {
             let v = y as f32 + 0.5;
             let r = (y - y0) as usize;
-            for bit in set_bits(open[r] & cols) {
-                let x = x0 + bit;
+            for (bit, _, h) in row_hits(s, x0, v, open[r] & cols) {
                 let p = r * TILE as usize + bit as usize;
-                let Some(h) = hit(s, x as f32 + 0.5, v) else {
-                    continue;
-                };
                 let ps = &mut st[p];
                 let o = &mut out[p];
                 let w = h.alpha * ps.t;
