@@ -74,7 +74,8 @@ done
 
 if [ "$table_only" = 0 ]; then
 bash scripts/setup.sh
-lf=$PWD/target/release/lightfuse
+# LIGHTFUSE=<binary> runs another build (a copy, so that builds beside the survey do not change it)
+lf=${LIGHTFUSE:-$PWD/target/release/lightfuse}
 py=$PWD/.venv/bin/python
 say() { echo "== $*" >&2; }
 

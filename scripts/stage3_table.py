@@ -121,7 +121,7 @@ def main(res):
             p = os.path.join(res, scene, v, "variant.txt")
             if os.path.isfile(p):
                 with open(p) as f:
-                    specs.add(f.read().strip().split("=", 1)[1].replace(",", " ") or "(the fast preset)")
+                    specs.add(f.read().strip().split("=", 1)[1].replace(",", " ") or "(the fast preset of its day: every `default` row here was measured before 2026-12-03, when the preset was the paper's method, `--papers-method` since)")
         print(f"- `{v}`: {'; '.join(sorted(specs)) or '?'}")
     print()
     print("| Scene | Variant | Table 1 | rescaled | Table 2 | ghost (lit / shadows) | base colour raw / rescaled | irradiance (uniform) "
