@@ -75,7 +75,7 @@ fn run_search(envs: Option<&[Environment]>) -> (SearchFigures, Vec<Surfels>) {
         env_width: EW as u32,
         env_height: EH as u32,
         material_search: true,
-        ..Settings::fast()
+        ..Settings::fast().papers_method()
     };
     grey_start(&mut scene, &settings);
     let states = train_states(&scene, &obs);

@@ -147,7 +147,7 @@ fn recovers_known_materials_and_environments() {
     let obs = captures(&t);
     // Start from grey materials on the true geometry.
     let mut scene = t.scene.clone();
-    grey_start(&mut scene, &Settings::fast());
+    grey_start(&mut scene, &Settings::fast().papers_method());
     let states = train_states(&scene, &obs);
     let init: Vec<Environment> = states
         .iter()
@@ -165,7 +165,7 @@ fn recovers_known_materials_and_environments() {
         env_width: EW as u32,
         env_height: EH as u32,
         primary_jitters: 16,
-        ..Settings::fast()
+        ..Settings::fast().papers_method()
     };
     let mut surfels: Vec<Surfels> = scene.components.iter().map(|c| c.surfels.clone()).collect();
     let refs: Vec<&Surfels> = surfels.iter().collect();
@@ -443,7 +443,7 @@ fn environment_levels_resume_bit_for_bit_and_bad_ones_are_refused() {
         env_width: 16,
         env_height: 8,
         env_levels: 3,
-        ..Settings::fast()
+        ..Settings::fast().papers_method()
     };
     assert!(settings.check().is_ok());
     let refs: Vec<&Surfels> = surfels.iter().collect();

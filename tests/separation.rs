@@ -35,6 +35,8 @@
 //! | `Loss::BrightL1` (the test below) | 0.989, 0.987, 0.983 | 6.8°, 9.0° (3 %, 2 %) | 0.672; no ghost on either tile (1.003, 0.966) |
 //! | `Loss::BrightL1` + `env_levels` 6 | 0.985, 0.989, 0.988 | 4.1°, 9.0° (7 %, 3 %) | – |
 //! | `light_fit` (the first test below; 2026-11-29) | 0.979, 0.982, 0.970 | 1.7°, 3.0° (20 %, 19 %) | 0.673; light tiles 0.976-0.990, dark 0.949-0.962 (its blue 0.1 % past the bound) |
+//! | `light_fit` + 4 bounces, L1 (`--loss l1`; 2026-12-03) | 0.981, 0.980, 0.976 | 1.7°, 3.0° (21 %, 21 %) | – |
+//! | the defaults since 2026-12-03: `light_fit` + 4 bounces + `Loss::WeightedL2` | 0.943, 0.938, 0.925 | 4.1°, 3.0° (21 %, 19 %) | – |
 //!
 //! Also: 800 iterations of lighting alone instead of 267, 0.908-0.938; `Loss::WeightedL2`, a
 //! deeper ghost (0.72-0.79); the true environments held fixed, 1.016 (the measure is sound:
@@ -443,7 +445,7 @@ fn settings() -> Settings {
     Settings {
         env_update: EnvUpdate::Shared,
         lambda_base_color: LAMBDA,
-        ..Settings::fast()
+        ..Settings::fast().papers_method()
     }
 }
 
@@ -515,7 +517,7 @@ fn a_checker_floor_keeps_its_texture_and_loses_its_shadows() {
 #[test]
 #[ignore = "issue 44: the paper's objective bakes the shadows into the floor (0.91 of the open floor)"]
 fn the_papers_objective_paints_the_shadows() {
-    let o = invert(false, Settings::fast());
+    let o = invert(false, Settings::fast().papers_method());
     assert_no_ghost(&o, 0);
 }
 
@@ -554,7 +556,7 @@ fn sun_share(env: &Environment, sun: Vec3) -> f64 {
 fn brightness_weighted_l1_keeps_the_shadows_out_of_the_paint() {
     let s = Settings {
         loss: Loss::BrightL1,
-        ..Settings::fast()
+        ..Settings::fast().papers_method()
     };
     let plain = invert(false, s.clone());
     assert_no_ghost(&plain, 0);
@@ -580,7 +582,7 @@ fn a_lighting_fit_from_the_shadows_casts_them() {
         false,
         Settings {
             light_fit: true,
-            ..Settings::fast()
+            ..Settings::fast().papers_method()
         },
     );
     assert_suns_found(&o);
@@ -595,7 +597,7 @@ fn a_lighting_fit_keeps_the_checker() {
         true,
         Settings {
             light_fit: true,
-            ..Settings::fast()
+            ..Settings::fast().papers_method()
         },
     );
     assert_no_ghost(&o, 0);
@@ -608,4 +610,31 @@ fn a_lighting_fit_keeps_the_checker() {
             "channel {c}: dark / light tiles {r:.3} (truth {want:.3})"
         );
     }
+}
+
+/// Stage 3's defaults ([`Settings::fast`]: the weighted L2, four bounces and the lighting fit)
+/// on the plain floor: the suns within 10° and carrying more than a tenth of the light, and no
+/// ghost. Ignored: on this floor the weighted L2 leaves a ghost of 0.943 (the module's table),
+/// though on the Cycles scenes of the survey it ghosts no more than L1 and wins Table 1.
+#[test]
+#[ignore = "issue 44: the weighted L2 leaves 0.943 of the open floor inside the shadows here"]
+fn the_defaults_cast_the_shadows() {
+    let o = invert(false, Settings::fast());
+    assert_suns_found(&o);
+    assert_no_ghost(&o, 0);
+}
+
+/// The light fit and four bounces with the paper's L1 (`--loss l1`): no ghost on the plain
+/// floor, the suns within 10° and carrying more than a tenth of the light.
+#[test]
+fn the_light_fit_with_four_bounces_casts_the_shadows() {
+    let o = invert(
+        false,
+        Settings {
+            loss: Loss::L1,
+            ..Settings::fast()
+        },
+    );
+    assert_suns_found(&o);
+    assert_no_ghost(&o, 0);
 }

@@ -361,6 +361,14 @@ mod tests {
             invert_settings_match(&f, &l1),
             "the defaults of the later fields"
         );
+        let papers = Overrides {
+            papers_method: true,
+            ..Default::default()
+        };
+        assert!(
+            invert_settings_match(&f, &papers),
+            "an old report is the paper's method"
+        );
         let others = [
             Overrides {
                 loss: Some(Loss::WeightedL2),
@@ -371,7 +379,7 @@ mod tests {
                 ..Default::default()
             },
             Overrides {
-                light_fit: true,
+                light_fit: Some(true),
                 ..Default::default()
             },
             Overrides {
@@ -386,7 +394,7 @@ mod tests {
         // is when this run gives none, and is out of date when it gives other values.
         let made = Overrides {
             bounces: Some(4),
-            light_fit: true,
+            light_fit: Some(true),
             iterations: Some(4),
             ..Default::default()
         };
