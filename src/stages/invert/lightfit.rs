@@ -12,11 +12,12 @@
 //! "Illumination from shadows", 1999). Solved directly, the sun appears where the shadows
 //! point, whatever few samples would have reached it.
 //!
-//! **The model.** For a surface point x with normal n seen in state k, Lambertian and
-//! direct light only,
+//! **The model.** For a surface point x with normal n seen in state k, Lambertian,
 //!
 //! ```text
-//! I_k(x) ≈ ρ_g · Σ_t T_k(x)_t E_k,t,   T_k(x)_t = (1/π) ∫_texel t V_k(x, ω) max(0, n·ω) dω
+//! I_k(x) ≈ ρ_g · ( Σ_t T_k(x)_t E_k,t + b_k(x) ),
+//! T_k(x)_t = (1/π) ∫_texel t V_k(x, ω) max(0, n·ω) dω,
+//! b_k(x)   = (1/π) ∫ (1 − V_k(x, ω)) L_k(hit(x, ω)) max(0, n·ω) dω
 //! ```
 //!
 //! with E_k a coarse lat-long map (piecewise constant: exactly what its resampling to the
@@ -27,20 +28,41 @@
 //! of the paint. Textures are noise to this fit (the robust weights below), not errors: stage 3
 //! then learns each surfel's own colour, starting from the group's.
 //!
+//! b_k is the light the point gets from the surfaces around it (eq. rendering-equation's
+//! indirect term, one bounce), and it is *measured*, not modelled: in the directions a surface
+//! blocks, the radiance leaving that surface toward x is what the cameras saw of it in state k
+//! (a diffuse surface sends the same radiance every way), so `composite_hits` along the
+//! transport's own directions gives Σ_j w_j L_j with L_j the mean of the pixels whose front
+//! surfel j is (not seen: its component's mean in that state, then the state's). Without it a
+//! floor beside a lit wall comes out brighter than ρ E says, and the fit could only explain
+//! that with more light (where the wall is) or brighter paint.
+//!
+//! **Sky and suns, E = S + P.** A few texels hold nearly all the power of a sunny sky; the rest
+//! is smooth. The fit says so: S is a smooth map (a graph Laplacian on the lat-long grid,
+//! wrapping in longitude and across each pole, not across the horizon, [`SMOOTH`] × the data's mean diagonal) held near
+//! the seen sky's level where no data reach ([`PRIOR`]), and P ≥ 0 a sparse one (a reweighted
+//! L1 penalty, Candès, Wakin & Boyd 2008: each texel pays [`SUN_COST`] × diag × level² ·
+//! p / (p + δ level) in the limit, a near-constant price per sun). A single map with a weak
+//! smoothness term, as before, let the non-negative solve leave every texel no shadow points
+//! at near black: the zenith that no view sees came out at a twentieth of the truth and the
+//! held-out views' backgrounds and the loop's start paid for it. Here a texel the data do
+//! not ask for stays at the smooth sky's value, and a sun costs what it costs, wherever the
+//! shadows put it.
+//!
 //! The pixels that see no surface look at the environment itself, so each texel they land in
 //! gets the row E_k,t = their mean (a direct measurement; it pins the scale that ρ and E
-//! otherwise trade). What remains unobserved is filled by a small smoothness term (the
-//! graph Laplacian of the lat-long grid, wrapping in longitude) and a ridge.
+//! otherwise trade).
 //!
-//! **The solve.** Alternating least squares, both steps exact: E_k (per channel, E ≥ 0) from
-//! the normal equations by projected Gauss-Seidel, then each ρ_g in closed form (clamped to
+//! **The solve.** Alternating, both steps exact: (S_k, P_k) per channel (S, P ≥ 0) by block
+//! coordinate descent on the convex objective, texel by texel, each texel's 2 × 2 problem with
+//! its bounds solved in closed form ([`texel_step`]); then each ρ_g in closed form (clamped to
 //! [0.02, 0.95]); rows reweighted each round by 1 / max(|r|, δ) on their luminance residual
 //! (iteratively reweighted least squares for an L1 fit, so specular objects, textures and the
-//! indirect light this model leaves out count as outliers rather than light).
+//! light paths this model leaves out count as outliers rather than light), and the sun
+//! penalty's weights 1 / (p + δ level) likewise.
 //!
-//! **What it leaves out**, on purpose: interreflections (surfaces lit by walls come out a
-//! little brighter than ρ E says, so the fit puts a little more light where walls are), gloss
-//! and metals. The loop that follows has all of them.
+//! **What it leaves out**, on purpose: bounces past the first (the measured radiance of the
+//! surroundings already holds them), gloss and metals. The loop that follows has all of them.
 
 // Colour channels and states are indexed alike across several arrays (rgb, ρ, E).
 #![allow(clippy::needless_range_loop)]
@@ -65,12 +87,25 @@ pub const HEIGHT: usize = 16;
 pub const POINTS: usize = 2400;
 /// Visibility directions per texel and point (2×2 stratified).
 const SUB: usize = 2;
-/// Rounds of alternation (each: E for every state, then ρ, then the weights).
-const ROUNDS: usize = 12;
-/// Gauss-Seidel sweeps per E solve (warm-started).
-const SWEEPS: usize = 150;
-/// The Laplacian's weight against the data's mean diagonal.
-const SMOOTH: f64 = 0.02;
+/// Rounds of alternation (each: S, P for every state, then ρ, then the weights). Many and
+/// short: ρ and the map's scale trade along a valley that only the seen sky pins, and the
+/// alternation walks it slowly (the module's test with a known bounce: ρ 10 % off after 12
+/// rounds of 150 sweeps, 0.4 % after 40 of 50).
+const ROUNDS: usize = 40;
+/// Coordinate-descent sweeps per (S, P) solve (warm-started).
+const SWEEPS: usize = 50;
+/// The smooth sky's Laplacian weight against the data's mean diagonal: strong, so the smooth
+/// part has no say in how light a shadow is cut (the sparse part has), and unseen texels take
+/// their neighbours' level.
+pub const SMOOTH: f64 = 50.0;
+/// The price of a sun texel against the data's mean diagonal × the sky's level² (the
+/// reweighted L1 term's limit).
+pub const SUN_COST: f64 = 10.0;
+/// The reweighted L1 term's δ, relative to the sky's level.
+const SUN_DELTA: f64 = 0.05;
+/// The last rounds, in which the suns found are free of the penalty (least squares on the
+/// support the L1 chose, "debiasing").
+const DEBIAS: usize = 4;
 /// A pixel looks at the sky when its composited opacity is below this.
 const SKY_ALPHA: f32 = 0.05;
 /// A pixel sees a surface when its composited opacity is above this.
@@ -88,6 +123,14 @@ pub struct FitFigures {
     pub rays: u64,
     /// Mean absolute luminance residual over the mean luminance, first and last round.
     pub residual: [f64; 2],
+    /// The share of the modelled light that is the surroundings' (Σ ρ b / Σ ρ (T E + b) over
+    /// the rows, luminance).
+    #[serde(default)]
+    pub bounce_share: f64,
+    /// Per state, the sparse part's share of the recovered map's radiant power (luminance):
+    /// how much of the light the fit put in suns.
+    #[serde(default)]
+    pub sun_share: Vec<f64>,
     pub seconds: f64,
 }
 
@@ -152,13 +195,57 @@ struct Seen {
     count: u32,
 }
 
-/// One row of the fit: state, group, observed colour and the transport to each texel
-/// (sparse: texel index and weight).
+/// One row of the fit: state, group, observed colour, the transport to each texel (sparse:
+/// texel index and weight) and the irradiance the surroundings give (the module's b, RGB).
 pub struct Row {
     pub state: usize,
     pub group: usize,
     pub rgb: [f64; 3],
     pub t: Vec<(u16, f32)>,
+    pub b: [f64; 3],
+}
+
+/// What the cameras saw of each surfel in one state: the radiance b's directions meet
+/// (the module's L_k), with the fallbacks for surfels no pixel had in front.
+struct Radiance {
+    surfel: HashMap<(u32, u32), [f64; 3]>,
+    component: Vec<Option<[f64; 3]>>,
+    state: [f64; 3],
+}
+
+impl Radiance {
+    fn new(seen: &HashMap<(u32, u32), Seen>, ncomponents: usize) -> Radiance {
+        let mut sums = vec![([0.0f64; 3], 0u64); ncomponents];
+        let mut all = ([0.0f64; 3], 0u64);
+        let mut surfel = HashMap::with_capacity(seen.len());
+        // In key order: the sums must not depend on the map's iteration order (determinism).
+        let mut keys: Vec<(u32, u32)> = seen.keys().copied().collect();
+        keys.sort_unstable();
+        for (c, i) in keys {
+            let s = &seen[&(c, i)];
+            for acc in [&mut sums[c as usize], &mut all] {
+                for ch in 0..3 {
+                    acc.0[ch] += s.rgb[ch];
+                }
+                acc.1 += s.count as u64;
+            }
+            surfel.insert((c, i), s.rgb.map(|x| x / s.count as f64));
+        }
+        let mean = |(s, n): ([f64; 3], u64)| (n > 0).then(|| s.map(|x| x / n as f64));
+        Radiance {
+            surfel,
+            component: sums.into_iter().map(mean).collect(),
+            state: mean(all).unwrap_or([0.0; 3]),
+        }
+    }
+
+    fn of(&self, c: u32, i: u32) -> [f64; 3] {
+        self.surfel
+            .get(&(c, i))
+            .copied()
+            .or_else(|| self.component.get(c as usize).copied().flatten())
+            .unwrap_or(self.state)
+    }
 }
 
 /// Fits the lighting (see the module) from `states`' captures through `cache`'s primary
@@ -220,6 +307,10 @@ pub fn fit(
             image += 1;
         }
     }
+    let radiance: Vec<Radiance> = seen
+        .iter()
+        .map(|m| Radiance::new(m, components.len()))
+        .collect();
 
     // 2. The points: surfels seen (by 2 pixels or more) in any state, a fixed-seed draw of
     // POINTS of them, each a row in every state that saw it (so the states' rows share ρ).
@@ -247,8 +338,9 @@ pub fn fit(
         }
     }
 
-    // 3. Each row's transport: SUB² directions per texel, visibility through the state's
-    // placement, cosine, solid angle / π.
+    // 3. Each row's transport and bounce: SUB² directions per texel, composited through the
+    // state's placement: what passes is transport to the texel, what the hits block is the
+    // hit surfels' measured radiance.
     let placed: Vec<_> = states.iter().map(|s| trace.place(&s.transforms)).collect();
     let traced = AtomicU64::new(0);
     let rows: Vec<Row> = jobs
@@ -258,15 +350,27 @@ pub fn fit(
             let x = Vec3::from_array(s.x.map(|v| (v * inv) as f32));
             let n = Vec3::from_array(s.n.map(|v| v as f32)).normalize_or_zero();
             let origin = (x + states[k].eps * n).to_array();
-            let t = transport(n, |d| {
+            let mut hits = Vec::new();
+            let (t, b) = transport(n, |d| {
                 traced.fetch_add(1, Ordering::Relaxed);
-                placed[k].transmittance(origin, d.to_array(), 0.0, f32::INFINITY)
+                hits.clear();
+                let rec =
+                    placed[k].composite_hits(origin, d.to_array(), 0.0, f32::INFINITY, &mut hits);
+                let mut l = [0.0f64; 3];
+                for h in &hits {
+                    let r = radiance[k].of(h.component, h.index);
+                    for c in 0..3 {
+                        l[c] += h.w as f64 * r[c];
+                    }
+                }
+                (1.0 - rec.alpha.clamp(0.0, 1.0), l)
             });
             Row {
                 state: k,
                 group,
                 rgb: s.rgb.map(|v| v * inv),
                 t,
+                b,
             }
         })
         .collect();
@@ -289,7 +393,6 @@ pub fn fit(
         .collect();
     // 5. Alternate.
     let solved = solve(&rows, &sky_rows, ngroups, states.len());
-    let (env, rho, residual) = (solved.env, solved.rho, solved.residual);
 
     let mut groups_seen = vec![false; ngroups];
     for r in &rows {
@@ -299,15 +402,22 @@ pub fn fit(
         .map(|c| {
             [0, 1, 2].map(|a| {
                 let g = 3 * c + a;
-                groups_seen[g].then(|| rho[g].map(|v| v as f32))
+                groups_seen[g].then(|| solved.rho[g].map(|v| v as f32))
             })
         })
         .collect();
     let groups = (0..ngroups)
         .filter(|&g| groups_seen[g])
-        .map(|g| ((g / 3) as u32, (g % 3) as u32, rho[g].map(|v| v as f32)))
+        .map(|g| {
+            (
+                (g / 3) as u32,
+                (g % 3) as u32,
+                solved.rho[g].map(|v| v as f32),
+            )
+        })
         .collect();
-    let envs = env
+    let envs = solved
+        .env
         .iter()
         .enumerate()
         .map(|(k, e)| {
@@ -327,18 +437,27 @@ pub fn fit(
             sky_texels: sky_rows.iter().flatten().filter(|s| s.2).count(),
             groups,
             rays,
-            residual,
+            residual: solved.residual,
+            bounce_share: solved.bounce_share,
+            sun_share: solved.sun_share,
             seconds: t0.elapsed().as_secs_f64(),
         },
     }
 }
 
-/// A point's transport to each texel (eq. rendering-equation's diffuse term, texel by texel):
-/// T_t = (1/π) Σ_j V(ω_j) max(0, n·ω_j) Δω_t / SUB², over SUB × SUB directions stratified in
-/// the texel; `visibility` the transmittance toward a direction. Texels with T_t = 0 are left
-/// out.
-pub fn transport(n: Vec3, visibility: impl Fn(Vec3) -> f32) -> Vec<(u16, f32)> {
+/// A point's transport to each texel and the irradiance its surroundings give (eq.
+/// rendering-equation's diffuse term, texel by texel): T_t = (1/π) Σ_j V(ω_j) max(0, n·ω_j)
+/// Δω_t / SUB² over SUB × SUB directions stratified in the texel, and b = (1/π) Σ over the
+/// same directions of the blocked radiance × max(0, n·ω_j) Δω_t / SUB². `look` gives, toward a
+/// direction, the transmittance V and the radiance the blocking surfaces send back weighted by
+/// how much they block (Σ_j w_j L_j, so (1 − V) × their mean radiance). Texels with T_t = 0
+/// are left out.
+pub fn transport(
+    n: Vec3,
+    mut look: impl FnMut(Vec3) -> (f32, [f64; 3]),
+) -> (Vec<(u16, f32)>, [f64; 3]) {
     let mut t = Vec::new();
+    let mut b = [0.0f64; 3];
     for ty in 0..HEIGHT {
         let dw = texel_solid_angle(WIDTH, HEIGHT, ty) / (SUB * SUB) as f64;
         for tx in 0..WIDTH {
@@ -349,7 +468,11 @@ pub fn transport(n: Vec3, visibility: impl Fn(Vec3) -> f32) -> Vec<(u16, f32)> {
                 let d = uv_to_direction([u, v]);
                 let c = n.dot(d);
                 if c > 0.0 {
-                    acc += (visibility(d) * c) as f64 * dw;
+                    let (vis, blocked) = look(d);
+                    acc += (vis * c) as f64 * dw;
+                    for ch in 0..3 {
+                        b[ch] += blocked[ch] * c as f64 * dw;
+                    }
                 }
             }
             if acc > 0.0 {
@@ -360,13 +483,13 @@ pub fn transport(n: Vec3, visibility: impl Fn(Vec3) -> f32) -> Vec<(u16, f32)> {
             }
         }
     }
-    t
+    (t, b.map(|v| v / std::f64::consts::PI))
 }
 
 /// A row on one texel of a state's environment: its index, radiance, and whether it was seen
-/// directly (the pixels' mean, weighted as one surface row) or is [`fill`]'s guess (weighted
-/// [`PRIOR`] × the data's mean diagonal, and only on texels whose own data weigh less: a
-/// guess must not outweigh the shadows that point at a sun).
+/// directly (the pixels' mean, weighted as one surface row, on S + P) or is [`fill`]'s guess
+/// (weighted [`PRIOR`] × the data's mean diagonal, on the smooth part S, and only on texels
+/// whose own data weigh less: a guess must not outweigh the shadows that point at a sun).
 pub type SkyTexel = (usize, [f64; 3], bool);
 
 /// The weight of [`fill`]'s rows against the data's mean diagonal.
@@ -374,9 +497,9 @@ pub const PRIOR: f64 = 0.1;
 
 /// Weak rows for the texels no view saw: the mean of their row's seen texels, or the nearest
 /// row's with any (what the loop's own start, `train::initial_environment`, puts there). A
-/// texel that few surface points see gets next to no say in the normal equations, and the
-/// solve is free to leave it black; a view of a new arrangement, or one held out, may look
-/// straight at it (the demo's held-out backgrounds fell to 7.5 dB without this).
+/// texel that few surface points see gets next to no say in the normal equations; a view of
+/// a new arrangement, or one held out, may look straight at it (the demo's held-out
+/// backgrounds fell to 7.5 dB without this).
 pub fn fill(seen: &[SkyTexel]) -> Vec<SkyTexel> {
     let mut texels: Vec<Option<[f64; 3]>> = vec![None; WIDTH * HEIGHT];
     for &(t, v, _) in seen {
@@ -391,29 +514,93 @@ pub fn fill(seen: &[SkyTexel]) -> Vec<SkyTexel> {
         .collect()
 }
 
-/// [`solve`]'s result: each state's coarse environment (texels, RGB), each group's ρ, and the
-/// relative L1 residual of the first and last round.
+/// A coarse map's texels (RGB, row-major).
+type Map = Vec<[f64; 3]>;
+
+/// [`solve`]'s result: each state's coarse environment E = S + P and its sparse part P
+/// (texels, RGB), each group's ρ, the relative L1 residual of the first and last round, and
+/// [`FitFigures`]' bounce and sun shares.
 pub struct Solved {
     pub env: Vec<Vec<[f64; 3]>>,
+    pub sun: Vec<Vec<[f64; 3]>>,
     pub rho: Vec<[f64; 3]>,
     pub residual: [f64; 2],
+    pub bounce_share: f64,
+    pub sun_share: Vec<f64>,
+}
+
+/// The texels' links of the smooth part's Laplacian: each texel to its right neighbour
+/// (wrapping in longitude) and the one below (except across the horizon), and across each pole to the texel half a turn
+/// away (the top row's texels all meet at the zenith).
+fn links() -> Vec<Vec<usize>> {
+    let mut n = vec![Vec::new(); WIDTH * HEIGHT];
+    let mut link = |i: usize, j: usize| {
+        n[i].push(j);
+        n[j].push(i);
+    };
+    for y in 0..HEIGHT {
+        for x in 0..WIDTH {
+            let i = y * WIDTH + x;
+            link(i, y * WIDTH + (x + 1) % WIDTH);
+            // Not across the horizon (+Y up, v = ½): ground and sky are different things,
+            // and a link there would pull the sky toward the ground's level.
+            if y + 1 < HEIGHT && y + 1 != HEIGHT / 2 {
+                link(i, (y + 1) * WIDTH + x);
+            }
+        }
+    }
+    for y in [0, HEIGHT - 1] {
+        for x in 0..WIDTH / 2 {
+            link(y * WIDTH + x, y * WIDTH + x + WIDTH / 2);
+        }
+    }
+    n
+}
+
+/// One texel's block of the (S, P) objective with the other texels held: minimises
+///
+/// ```text
+/// f(s, p) = ½ a (s + p)² + g_x (s + p) + ½ l s² + g_s s + c p,   s, p ≥ 0,
+/// ```
+///
+/// a the data's (and seen sky's) diagonal, g_x their gradient at s = p = 0 given the other
+/// texels, l the Laplacian's and prior's diagonal, g_s likewise, c the sun penalty's weight.
+/// Convex, so the minimum is the interior stationary point when feasible, else the best of
+/// the two edges (each a clamped 1-D minimum).
+pub fn texel_step(a: f64, gx: f64, l: f64, gs: f64, c: f64) -> (f64, f64) {
+    let f = |s: f64, p: f64| {
+        0.5 * a * (s + p).powi(2) + gx * (s + p) + 0.5 * l * s * s + gs * s + c * p
+    };
+    let s_int = (c - gs) / l;
+    let p_int = -(gx + c) / a - s_int;
+    if s_int >= 0.0 && p_int >= 0.0 {
+        return (s_int, p_int);
+    }
+    let edge_s = ((-(gx + gs)) / (a + l)).max(0.0);
+    let edge_p = (-(gx + c) / a).max(0.0);
+    if f(edge_s, 0.0) <= f(0.0, edge_p) {
+        (edge_s, 0.0)
+    } else {
+        (0.0, edge_p)
+    }
 }
 
 /// The alternation of the module's model on given rows (exposed for its tests): `rows` the
-/// surface points (state, group, colour, sparse transport over `WIDTH × HEIGHT` texels),
-/// `sky` each state's directly seen texels.
+/// surface points (state, group, colour, sparse transport over `WIDTH × HEIGHT` texels,
+/// bounce), `sky` each state's directly seen texels and [`fill`]'s guesses.
 pub fn solve(rows: &[Row], sky: &[Vec<SkyTexel>], ngroups: usize, nstates: usize) -> Solved {
     let ntex = WIDTH * HEIGHT;
-    let sky_rows = sky;
     let mean_lum = rows.iter().map(|r| luminance(r.rgb)).sum::<f64>() / rows.len().max(1) as f64;
     let delta = 0.05 * mean_lum.max(1e-6);
     let mut rho = vec![[0.5f64; 3]; ngroups];
     let mut weight = vec![1.0f64; rows.len()];
-    // Start each environment at its sky's mean (or the captures' level where none is seen).
-    let mut env: Vec<Vec<[f64; 3]>> = sky_rows
+    let nbrs = links();
+    // Each state's sky level (its sky rows' mean, or the captures' level where none is
+    // seen): the smooth part's start and the sun penalty's scale.
+    let level: Vec<[f64; 3]> = sky
         .iter()
         .map(|s| {
-            let m = if s.is_empty() {
+            if s.is_empty() {
                 [2.0 * mean_lum; 3]
             } else {
                 let mut a = [0.0; 3];
@@ -423,27 +610,38 @@ pub fn solve(rows: &[Row], sky: &[Vec<SkyTexel>], ngroups: usize, nstates: usize
                     }
                 }
                 a
-            };
-            vec![m; ntex]
+            }
         })
         .collect();
+    // S starts at the sky rows' values (seen, or filled), P at zero.
+    let mut smooth: Vec<Vec<[f64; 3]>> = (0..nstates)
+        .map(|k| {
+            let mut s = vec![level[k]; ntex];
+            for &(t, v, _) in &sky[k] {
+                s[t] = v;
+            }
+            s
+        })
+        .collect();
+    let mut sun: Vec<Vec<[f64; 3]>> = vec![vec![[0.0; 3]; ntex]; nstates];
     let by_state: Vec<Vec<usize>> = (0..nstates)
         .map(|k| (0..rows.len()).filter(|&r| rows[r].state == k).collect())
         .collect();
     let mut residual = [0.0f64; 2];
     for round in 0..ROUNDS {
-        // E step: per state, A_c = Σ_g ρ_gc² M_g + sky + smoothness, b_c likewise. A sky
-        // texel's row is one measurement of it (transport 1 to that texel), weighted as the
-        // mean surface row.
+        // (S, P) step: per state, A_c = Σ_g ρ_gc² M_g (+ the seen sky), rhs_c = Σ_rows w ρ_c
+        // T (I_c − ρ_c b_c) (+ the seen sky). A sky texel's row is one measurement of it
+        // (transport 1 to that texel), weighted as the mean surface row.
         let w_sky = weight.iter().sum::<f64>() / weight.len().max(1) as f64;
-        let solved: Vec<Vec<[f64; 3]>> = (0..nstates)
+        let solved: Vec<(Map, Map)> = (0..nstates)
             .into_par_iter()
             .map(|k| {
                 let mut m = vec![vec![0.0f64; ntex * ntex]; ngroups];
-                let mut b = vec![[0.0f64; 3]; ntex];
+                let mut rhs = vec![[0.0f64; 3]; ntex];
                 for &r in &by_state[k] {
                     let row = &rows[r];
                     let w = weight[r];
+                    let rg = rho[row.group];
                     let mg = &mut m[row.group];
                     for &(i, ti) in &row.t {
                         let wi = w * ti as f64;
@@ -451,11 +649,12 @@ pub fn solve(rows: &[Row], sky: &[Vec<SkyTexel>], ngroups: usize, nstates: usize
                             mg[i as usize * ntex + j as usize] += wi * tj as f64;
                         }
                         for c in 0..3 {
-                            b[i as usize][c] += wi * rho[row.group][c] * row.rgb[c];
+                            rhs[i as usize][c] += wi * rg[c] * (row.rgb[c] - rg[c] * row.b[c]);
                         }
                     }
                 }
-                let mut out = env[k].clone();
+                let mut s_out = smooth[k].clone();
+                let mut p_out = sun[k].clone();
                 for c in 0..3 {
                     let mut a = vec![0.0f64; ntex * ntex];
                     for (g, mg) in m.iter().enumerate() {
@@ -466,68 +665,86 @@ pub fn solve(rows: &[Row], sky: &[Vec<SkyTexel>], ngroups: usize, nstates: usize
                             }
                         }
                     }
-                    let mut bc: Vec<f64> = b.iter().map(|v| v[c]).collect();
+                    let mut r: Vec<f64> = rhs.iter().map(|v| v[c]).collect();
                     let diag = (0..ntex).map(|i| a[i * ntex + i]).sum::<f64>() / ntex as f64;
                     let diag = diag.max(1e-12);
-                    for &(t, v, seen) in &sky_rows[k] {
-                        let w = if seen {
-                            w_sky
+                    let mut prior_w = vec![0.0f64; ntex];
+                    let mut prior_v = vec![0.0f64; ntex];
+                    for &(t, v, seen) in &sky[k] {
+                        if seen {
+                            a[t * ntex + t] += w_sky;
+                            r[t] += w_sky * v[c];
                         } else if a[t * ntex + t] < PRIOR * diag {
-                            PRIOR * diag
-                        } else {
-                            continue;
-                        };
-                        a[t * ntex + t] += w;
-                        bc[t] += w * v[c];
-                    }
-                    let lam = SMOOTH * diag;
-                    for y in 0..HEIGHT {
-                        for x in 0..WIDTH {
-                            let i = y * WIDTH + x;
-                            let mut link = |j: usize| {
-                                a[i * ntex + i] += lam;
-                                a[j * ntex + j] += lam;
-                                a[i * ntex + j] -= lam;
-                                a[j * ntex + i] -= lam;
-                            };
-                            link(y * WIDTH + (x + 1) % WIDTH);
-                            if y + 1 < HEIGHT {
-                                link((y + 1) * WIDTH + x);
-                            }
+                            prior_w[t] = PRIOR * diag;
+                            prior_v[t] = v[c];
                         }
                     }
                     for i in 0..ntex {
                         a[i * ntex + i] += 1e-6 * diag;
                     }
-                    let mut e: Vec<f64> = out.iter().map(|v| v[c]).collect();
+                    let lam = SMOOTH * diag;
+                    let lev = level[k][c].max(1e-6);
+                    let lam_p = SUN_COST * diag * lev * lev;
+                    // The reweighted L1's weights: plain L1 (1 / level) in the first round;
+                    // in the last DEBIAS rounds none on the suns found (p above the level),
+                    // whose power then comes from the data alone (the L1 chose where the suns
+                    // are, not how bright: its pull would dim them and brighten ρ to match).
+                    let cost: Vec<f64> = (0..ntex)
+                        .map(|i| {
+                            let p = p_out[i][c];
+                            if round == 0 {
+                                lam_p / lev
+                            } else if round + DEBIAS >= ROUNDS && p > lev {
+                                0.0
+                            } else {
+                                lam_p / (p + SUN_DELTA * lev)
+                            }
+                        })
+                        .collect();
+                    let mut s: Vec<f64> = s_out.iter().map(|v| v[c]).collect();
+                    let mut p: Vec<f64> = p_out.iter().map(|v| v[c]).collect();
+                    let mut x: Vec<f64> = s.iter().zip(&p).map(|(a, b)| a + b).collect();
                     for _ in 0..SWEEPS {
                         for i in 0..ntex {
                             let row = &a[i * ntex..(i + 1) * ntex];
-                            let s: f64 =
-                                row.iter().zip(&e).map(|(x, y)| x * y).sum::<f64>() - row[i] * e[i];
-                            e[i] = ((bc[i] - s) / row[i]).max(0.0);
+                            let aii = row[i];
+                            let gx = row.iter().zip(&x).map(|(u, v)| u * v).sum::<f64>()
+                                - aii * x[i]
+                                - r[i];
+                            let l = lam * nbrs[i].len() as f64 + prior_w[i];
+                            let gs = -lam * nbrs[i].iter().map(|&j| s[j]).sum::<f64>()
+                                - prior_w[i] * prior_v[i];
+                            let (si, pi) = texel_step(aii, gx, l, gs, cost[i]);
+                            s[i] = si;
+                            p[i] = pi;
+                            x[i] = si + pi;
                         }
                     }
-                    for (o, v) in out.iter_mut().zip(e) {
-                        o[c] = v;
+                    for i in 0..ntex {
+                        s_out[i][c] = s[i];
+                        p_out[i][c] = p[i];
                     }
                 }
-                out
+                (s_out, p_out)
             })
             .collect();
-        env = solved;
+        for (k, (s, p)) in solved.into_iter().enumerate() {
+            smooth[k] = s;
+            sun[k] = p;
+        }
 
         // ρ step and the new weights.
         let irr: Vec<[f64; 3]> = rows
             .iter()
             .map(|r| {
-                let mut p = [0.0f64; 3];
+                let mut e = r.b;
                 for &(t, w) in &r.t {
                     for c in 0..3 {
-                        p[c] += w as f64 * env[r.state][t as usize][c];
+                        e[c] += w as f64
+                            * (smooth[r.state][t as usize][c] + sun[r.state][t as usize][c]);
                     }
                 }
-                p
+                e
             })
             .collect();
         let mut num = vec![[0.0f64; 3]; ngroups];
@@ -559,7 +776,41 @@ pub fn solve(rows: &[Row], sky: &[Vec<SkyTexel>], ngroups: usize, nstates: usize
         residual[1] = rel;
     }
 
-    Solved { env, rho, residual }
+    let env: Vec<Vec<[f64; 3]>> = (0..nstates)
+        .map(|k| {
+            (0..ntex)
+                .map(|t| [0, 1, 2].map(|c| smooth[k][t][c] + sun[k][t][c]))
+                .collect()
+        })
+        .collect();
+    let power = |e: &[[f64; 3]]| {
+        (0..ntex)
+            .map(|t| luminance(e[t]) * texel_solid_angle(WIDTH, HEIGHT, t / WIDTH))
+            .sum::<f64>()
+    };
+    let sun_share = (0..nstates)
+        .map(|k| power(&sun[k]) / power(&env[k]).max(1e-12))
+        .collect();
+    let (mut bounce, mut total) = (0.0, 0.0);
+    for row in rows {
+        let rg = rho[row.group];
+        let mut e = row.b;
+        for &(t, w) in &row.t {
+            for c in 0..3 {
+                e[c] += w as f64 * env[row.state][t as usize][c];
+            }
+        }
+        bounce += luminance([0, 1, 2].map(|c| rg[c] * row.b[c]));
+        total += luminance([0, 1, 2].map(|c| rg[c] * e[c]));
+    }
+    Solved {
+        env,
+        sun,
+        rho,
+        residual,
+        bounce_share: bounce / total.max(1e-12),
+        sun_share,
+    }
 }
 
 #[cfg(test)]
@@ -569,7 +820,7 @@ mod tests {
     /// An unoccluded point's transport, dense.
     fn open_row(n: Vec3) -> Vec<f64> {
         let mut t = vec![0.0; WIDTH * HEIGHT];
-        for (i, v) in transport(n, |_| 1.0) {
+        for (i, v) in transport(n, |_| (1.0, [0.0; 3])).0 {
             t[i as usize] = v as f64;
         }
         t
@@ -577,28 +828,77 @@ mod tests {
 
     /// (1/π) ∫ max(0, n·ω) dω = 1: the quadrature within 1 % for any normal (measured 0.3 %
     /// off at 32×16 with 2×2 directions per texel); a point blocked toward every direction
-    /// with x > 0 receives half.
+    /// with x > 0 by surfaces of radiance L receives half through the texels and L / 2 from
+    /// those surfaces (b: what they send back, over what they cover).
     #[test]
     fn an_open_point_receives_the_whole_cosine_lobe() {
         for n in [Vec3::Y, Vec3::X, Vec3::new(0.3, 0.8, -0.5).normalize()] {
             let sum: f64 = open_row(n).iter().sum();
             assert!((sum - 1.0).abs() < 0.01, "normal {n}: Σ T = {sum}");
+            assert_eq!(transport(n, |_| (1.0, [0.0; 3])).1, [0.0; 3]);
         }
-        let half: f32 = transport(Vec3::Y, |d| if d.x > 0.0 { 0.0 } else { 1.0 })
-            .iter()
-            .map(|&(_, v)| v)
-            .sum();
+        let wall = [0.3, 0.2, 0.1];
+        let (t, b) = transport(Vec3::Y, |d| {
+            if d.x > 0.0 {
+                (0.0, wall)
+            } else {
+                (1.0, [0.0; 3])
+            }
+        });
+        let half: f32 = t.iter().map(|&(_, v)| v).sum();
         assert!((half - 0.5).abs() < 0.01, "half-blocked: Σ T = {half}");
+        for c in 0..3 {
+            let r = b[c] / (0.5 * wall[c]);
+            assert!(
+                (r - 1.0).abs() < 0.02,
+                "channel {c}: b {:.4} = {r:.4} × L / 2",
+                b[c]
+            );
+        }
+    }
+
+    /// The 2 × 2 block against a brute-force search over a grid: the closed form is the
+    /// constrained minimum in each of its cases (interior, either edge, the corner).
+    #[test]
+    fn a_texel_step_is_its_block_minimum() {
+        let f = |a: f64, gx: f64, l: f64, gs: f64, c: f64, s: f64, p: f64| {
+            0.5 * a * (s + p).powi(2) + gx * (s + p) + 0.5 * l * s * s + gs * s + c * p
+        };
+        let cases = [
+            (2.0, -3.0, 1.0, -0.5, 0.2),  // interior
+            (2.0, -3.0, 1.0, -0.5, 5.0),  // p = 0
+            (2.0, -3.0, 1.0, 2.5, 0.1),   // s = 0
+            (2.0, 3.0, 1.0, 0.5, 0.1),    // the corner
+            (0.5, -1.0, 4.0, -1.0, 0.05), // interior, strong smoothness
+        ];
+        for (a, gx, l, gs, c) in cases {
+            let (s, p) = texel_step(a, gx, l, gs, c);
+            assert!(s >= 0.0 && p >= 0.0);
+            let got = f(a, gx, l, gs, c, s, p);
+            let mut best = f64::INFINITY;
+            for i in 0..=400 {
+                for j in 0..=400 {
+                    best = best.min(f(a, gx, l, gs, c, i as f64 * 0.01, j as f64 * 0.01));
+                }
+            }
+            assert!(
+                got <= best + 1e-9,
+                "case {:?}: f {got} > grid's {best}",
+                (a, gx, l, gs, c)
+            );
+        }
     }
 
     /// Rows made from a known model: two states, each a sky of 0.25-0.4 (bluish) plus a sun
     /// in one texel (its own per state), two groups of known ρ, upward points whose sun is
     /// blocked for a quarter of them (the shadows) and whose sky is cut in a random azimuth
-    /// wedge; the horizon band of the sky seen, the zenith and the suns not.
-    /// The fit, the true maps, the true ρ and an open upward point's transport.
-    type Synthetic = (Solved, Vec<Vec<[f64; 3]>>, [[f64; 3]; 2], Vec<f64>);
+    /// wedge by a wall of known radiance (their bounce light); the horizon band of the sky
+    /// seen, the zenith and the suns not. The fit, the true maps, the true ρ.
+    type Synthetic = (Solved, Vec<Vec<[f64; 3]>>, [[f64; 3]; 2]);
 
-    fn synthetic(outliers: bool) -> Synthetic {
+    const WALL: [f64; 3] = [0.9, 0.7, 0.5];
+
+    fn synthetic(outliers: bool, with_bounce: bool, seen_from: usize) -> Synthetic {
         let ntex = WIDTH * HEIGHT;
         let up = open_row(Vec3::Y);
         let sun_texel = [3 * WIDTH + 5, 5 * WIDTH + 20];
@@ -625,17 +925,19 @@ mod tests {
                 let group = i % 2;
                 let shadowed = i % 4 < 1;
                 let wedge = (rng.f32() * WIDTH as f32) as usize;
+                let cut = |t: usize| (t % WIDTH + WIDTH - wedge) % WIDTH < 4 && t / WIDTH >= 4;
                 let t: Vec<(u16, f32)> = up
                     .iter()
                     .enumerate()
-                    .filter(|&(t, &v)| {
-                        let x = t % WIDTH;
-                        let cut = (x + WIDTH - wedge) % WIDTH < 4;
-                        v > 0.0 && !(shadowed && t == sun_texel[k]) && !cut
-                    })
+                    .filter(|&(t, &v)| v > 0.0 && !(shadowed && t == sun_texel[k]) && !cut(t))
                     .map(|(t, &v)| (t as u16, v as f32))
                     .collect();
+                let covered: f64 = (0..ntex).filter(|&t| cut(t)).map(|t| up[t]).sum();
+                let b = WALL.map(|v| v * covered);
                 let mut rgb = [0.0; 3];
+                for c in 0..3 {
+                    rgb[c] = rho[group][c] * b[c];
+                }
                 for &(j, w) in &t {
                     for c in 0..3 {
                         rgb[c] += rho[group][c] * w as f64 * truth[k][j as usize][c];
@@ -649,12 +951,13 @@ mod tests {
                     group,
                     rgb,
                     t,
+                    b: if with_bounce { b } else { [0.0; 3] },
                 });
             }
         }
         let sky: Vec<Vec<SkyTexel>> = (0..2)
             .map(|k| {
-                let seen: Vec<SkyTexel> = (5 * WIDTH..8 * WIDTH)
+                let seen: Vec<SkyTexel> = (seen_from * WIDTH..8 * WIDTH)
                     .filter(|&t| t != sun_texel[k])
                     .map(|t| (t, truth[k][t], true))
                     .collect();
@@ -663,51 +966,62 @@ mod tests {
                 all
             })
             .collect();
-        (solve(&rows, &sky, 2, 2), truth, rho, up)
+        (solve(&rows, &sky, 2, 2), truth, rho)
+    }
+
+    fn lum(v: &[f64; 3]) -> f64 {
+        luminance(*v)
+    }
+
+    fn argmax(e: &[[f64; 3]]) -> usize {
+        (0..e.len())
+            .max_by(|&a, &b| lum(&e[a]).total_cmp(&lum(&e[b])))
+            .unwrap()
     }
 
     /// What the data determine: each sun's texel (the shadows point at it), the seen sky
-    /// (kept to 1 %), the groups' colours relative to each other (within 5 %: measured 3.1-3.2 %,
-    /// the smoothness term's pull on the suns weighs the groups' rows a little differently) and
-    /// a fit of the rows (relative L1 residual below 5 %: measured 2.9 %, the same pull; with
-    /// the outliers below 15 %: they alone are ~10 %, measured 11.2 %). Not the common scale
-    /// and colour of ρ: the suns' colour is never seen and the unseen zenith sky trades with
-    /// it (measured: ρ 1.45 / 1.28 / 0.95 × the truth per channel, the suns whiter and
-    /// dimmer). The robust weights hold the same with a tenth of the rows' colours doubled.
+    /// (kept to 3 %: the smooth part's Laplacian pulls the seen band toward the unseen rows
+    /// above it; measured 1.1 / 1.3 %, with the outliers 0.8 / 0.9 %), the groups' colours
+    /// relative to each other (within 5 %: measured 0.2 %, with the outliers 1.6 %) and a fit
+    /// of the rows (relative L1 residual below 5 %: measured 0.19 %; with the outliers below
+    /// 15 %: they alone are ~10 %, measured 9.1 %). The robust weights hold the same with a
+    /// tenth of the rows' colours doubled. Not the common scale and colour of ρ here: the
+    /// suns' colour is never seen and the unseen zenith trades with it (measured: ρ 1.24 /
+    /// 1.17 / 0.97 × the truth per channel; [`known_bounce_light_is_not_painted`] sees more
+    /// of the sky and gets it).
     fn check(outliers: bool, max_residual: f64) {
-        let (got, truth, rho, _) = synthetic(outliers);
-        let lum = |v: &[f64; 3]| luminance(*v);
-        let argmax = |e: &Vec<[f64; 3]>| {
-            (0..e.len())
-                .max_by(|&a, &b| lum(&e[a]).total_cmp(&lum(&e[b])))
-                .unwrap()
-        };
+        let (got, truth, rho) = synthetic(outliers, true, 5);
         for k in 0..2 {
-            assert_eq!(
-                argmax(&got.env[k]),
-                argmax(&truth[k]),
-                "state {k}: sun texel"
-            );
+            let sun = argmax(&truth[k]);
+            assert_eq!(argmax(&got.env[k]), sun, "state {k}: sun texel");
+            let mut worst = 0.0f64;
             for t in 5 * WIDTH..8 * WIDTH {
-                if t == argmax(&truth[k]) {
+                if t == sun {
                     continue;
                 }
                 for c in 0..3 {
-                    let r = got.env[k][t][c] / truth[k][t][c];
-                    assert!(
-                        (r - 1.0).abs() < 0.01,
-                        "state {k}, seen texel {t}: {r:.4}× the truth"
-                    );
+                    worst = worst.max((got.env[k][t][c] / truth[k][t][c] - 1.0).abs());
                 }
             }
+            eprintln!("state {k}: seen sky off by ≤ {worst:.4}");
+            assert!(
+                worst < 0.03,
+                "state {k}: a seen texel {worst:.4} off the truth"
+            );
         }
         for c in 0..3 {
             let r = (got.rho[1][c] / got.rho[0][c]) / (rho[1][c] / rho[0][c]);
+            eprintln!(
+                "channel {c}: ρ_1 / ρ_0 {r:.4}× the truth's; ρ {:.4}, {:.4}× the truth",
+                got.rho[0][c] / rho[0][c],
+                got.rho[1][c] / rho[1][c]
+            );
             assert!(
                 (r - 1.0).abs() < 0.05,
                 "channel {c}: ρ_1 / ρ_0 {r:.3}× the truth's"
             );
         }
+        eprintln!("residual {:?}", got.residual);
         assert!(
             got.residual[1] < max_residual,
             "relative L1 residual {:?} (first, last round)",
@@ -723,5 +1037,55 @@ mod tests {
     #[test]
     fn the_fit_shrugs_off_outliers() {
         check(true, 0.15);
+    }
+
+    /// The zenith no view sees and no shadow points at is a sky, not a hole: each of its
+    /// texels (rows 0-4, the sun's left out) within a factor 2 of the truth (measured 1.43×
+    /// at worst, both states; the old single map with a weak smoothness term left such
+    /// texels near black).
+    #[test]
+    fn the_unseen_sky_stays_a_sky() {
+        let (got, truth, _) = synthetic(false, true, 5);
+        for k in 0..2 {
+            let sun = argmax(&truth[k]);
+            let mut worst = 0.0f64;
+            for t in 0..5 * WIDTH {
+                if t == sun {
+                    continue;
+                }
+                worst = worst.max((lum(&got.env[k][t]) / lum(&truth[k][t])).ln().abs());
+            }
+            eprintln!(
+                "state {k}: zenith |log ratio| ≤ {worst:.3}, sun share {:.3}",
+                got.sun_share[k]
+            );
+            assert!(
+                worst < 2f64.ln(),
+                "state {k}: a zenith texel {:.2}× off",
+                worst.exp()
+            );
+        }
+    }
+
+    /// The surroundings' light is not painted: with each row's bounce given, the groups'
+    /// colours come out at their own scale (within 5 %, measured 0.4 %) when the sky is seen
+    /// down from row 1; with it left out the fit must explain the wall's light with paint or
+    /// sky, and misses by more (measured 24 %: ρ too bright).
+    #[test]
+    fn known_bounce_light_is_not_painted() {
+        let err = |with: bool| {
+            let (got, _, rho) = synthetic(false, with, 1);
+            (0..2)
+                .flat_map(|g| (0..3).map(move |c| (g, c)))
+                .map(|(g, c)| (got.rho[g][c] / rho[g][c] - 1.0).abs())
+                .fold(0.0f64, f64::max)
+        };
+        let (with, without) = (err(true), err(false));
+        eprintln!("ρ off by ≤ {with:.4} with the bounce, {without:.4} without");
+        assert!(with < 0.05, "with the bounce: ρ {with:.3} off");
+        assert!(
+            without > 2.0 * with,
+            "without: {without:.3} against {with:.3}"
+        );
     }
 }
