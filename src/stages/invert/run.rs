@@ -227,8 +227,18 @@ pub fn invert(opts: &Options) -> Result<Report> {
                 say(
                     opts.quiet,
                     &format!(
-                        "lighting fit: {} rows, {} sky texels, residual {:.3} -> {:.3}, {:.1} s",
-                        f.rows, f.sky_texels, f.residual[0], f.residual[1], f.seconds
+                        "lighting fit: {} rows, {} sky texels, residual {:.3} -> {:.3}, the surroundings' light {:.0} %, suns {} % of each map's power, {:.1} s",
+                        f.rows,
+                        f.sky_texels,
+                        f.residual[0],
+                        f.residual[1],
+                        100.0 * f.bounce_share,
+                        f.sun_share
+                            .iter()
+                            .map(|v| format!("{:.0}", 100.0 * v))
+                            .collect::<Vec<_>>()
+                            .join(" / "),
+                        f.seconds
                     ),
                 );
             }
