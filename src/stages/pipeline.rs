@@ -343,10 +343,16 @@ mod tests {
             "an ablation's partial evaluation"
         );
         // Stage 3: the options given; a report written before a field was trained with its
-        // default (the paper's L1, one bounce, no light fit).
+        // default (the paper's L1, one bounce, no light fit, no material search).
         let fast = Settings::fast();
         let mut old = serde_json::to_value(&fast).unwrap();
-        for later in ["loss", "bounces", "light_fit"] {
+        for later in [
+            "loss",
+            "bounces",
+            "light_fit",
+            "light_fit_texture",
+            "material_search",
+        ] {
             old.as_object_mut().unwrap().remove(later).unwrap();
         }
         write(serde_json::json!({ "settings": old }));
