@@ -78,10 +78,10 @@
 //! convex objective, texel by texel, each texel's block (the three channels of s and the sun's
 //! p, all ≥ 0) solved in closed form ([`SunTexel`]), then κ_k; then each ρ_g in closed form
 //! (clamped to [0.02, 0.95]); then each τ_x (`texture_step`, with `--light-fit-texture`); rows
-//! reweighted each round by
-//! 1 / max(|r|, δ) on their luminance residual (iteratively reweighted least squares for an L1
-//! fit, so specular objects and the light paths this model leaves out count as outliers
-//! rather than light), and the sun penalty's weights 1 / (p + δ level) likewise.
+//! reweighted each round by 1 / max(|r|, δ) on their luminance residual (iteratively
+//! reweighted least squares for an L1 fit, so specular objects and the light paths this model
+//! leaves out count as outliers rather than light), and the sun penalty's weights
+//! 1 / (p + δ level) likewise.
 //!
 //! **What it leaves out**, on purpose: bounces past the first (the measured radiance of the
 //! surroundings already holds them), gloss and metals. The loop that follows has all of them.
@@ -721,7 +721,6 @@ fn texture_step(
     weight: &[f64],
     rho: &mut [[f64; 3]],
     tau: &mut [f64],
-    prior: f64,
 ) {
     let n = tau.len();
     let (mut num, mut den, mut rows_of) = (vec![0.0f64; n], vec![0.0f64; n], vec![0u32; n]);
@@ -740,10 +739,12 @@ fn texture_step(
         if rows_of[x] == 0 || den[x] <= 1e-300 {
             continue;
         }
-        let lam = prior * den[x] / rows_of[x] as f64;
+        let lam = TEXTURE_PRIOR * den[x] / rows_of[x] as f64;
         tau[x] = ((num[x] + lam) / (den[x] + lam)).clamp(TAU_RANGE.0, TAU_RANGE.1);
         of_group[group_of[x]].push(tau[x]);
     }
+    // Each group's factor moved from its points' τ into ρ_g (1: none).
+    let mut moved = vec![1.0f64; ngroups];
     for g in 0..ngroups {
         if of_group[g].is_empty() {
             continue;
@@ -769,12 +770,19 @@ fn texture_step(
         for c in 0..3 {
             rho[g][c] *= gm;
         }
-        for x in 0..n {
-            if group_of[x] == g {
-                tau[x] /= gm;
-            }
-        }
+        moved[g] = gm;
     }
+    for x in (0..n).filter(|&x| group_of[x] != usize::MAX) {
+        tau[x] /= moved[group_of[x]];
+    }
+}
+
+/// Each state's sparse map P_t = κ p_t from its magnitudes `mag` and its suns' colour `kappa`.
+fn suns(mag: &[Vec<f64>], kappa: &[[f64; 3]]) -> Vec<Map> {
+    mag.iter()
+        .zip(kappa)
+        .map(|(m, kap)| m.iter().map(|&p| kap.map(|c| c * p)).collect())
+        .collect()
 }
 
 /// The alternation of the module's model on given rows (exposed for its tests): `rows` the
@@ -988,9 +996,7 @@ pub fn solve(
             mag[k] = p;
             kappa[k] = kap;
         }
-        let sun: Vec<Map> = (0..nstates)
-            .map(|k| mag[k].iter().map(|&p| kappa[k].map(|c| c * p)).collect())
-            .collect();
+        let sun = suns(&mag, &kappa);
 
         // ρ step and the new weights.
         let irr: Vec<[f64; 3]> = rows
@@ -1023,7 +1029,7 @@ pub fn solve(
             }
         }
         if texture {
-            texture_step(rows, &irr, &weight, &mut rho, &mut tau, TEXTURE_PRIOR);
+            texture_step(rows, &irr, &weight, &mut rho, &mut tau);
         }
         let mut abs = 0.0;
         for (r, row) in rows.iter().enumerate() {
@@ -1039,9 +1045,7 @@ pub fn solve(
         residual[1] = rel;
     }
 
-    let sun: Vec<Map> = (0..nstates)
-        .map(|k| mag[k].iter().map(|&p| kappa[k].map(|c| c * p)).collect())
-        .collect();
+    let sun = suns(&mag, &kappa);
     let env: Vec<Vec<[f64; 3]>> = (0..nstates)
         .map(|k| {
             (0..ntex)
