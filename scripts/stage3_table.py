@@ -10,6 +10,13 @@ import json
 import os
 import sys
 
+# What a variant without options ran: the fast preset of the binary it ran with.
+NO_OPTIONS = {
+    "default": "(the fast preset of its day: every `default` row here was measured before 2026-12-03, "
+    "when the preset was the paper's method, `--papers-method` since)",
+    None: "(no options: the fast preset's defaults of the binary it ran with; each row's note says which)",
+}
+
 ORDER = ["demo", "sunroom", "atelier", "bedroom", "playroom", "livingroom", "kitchen", "study", "gallery",
          "workshop"]
 PLAIN = {"sunroom", "atelier"}
@@ -121,7 +128,7 @@ def main(res):
             p = os.path.join(res, scene, v, "variant.txt")
             if os.path.isfile(p):
                 with open(p) as f:
-                    specs.add(f.read().strip().split("=", 1)[1].replace(",", " ") or "(the fast preset of its day: every `default` row here was measured before 2026-12-03, when the preset was the paper's method, `--papers-method` since)")
+                    specs.add(f.read().strip().split("=", 1)[1].replace(",", " ") or NO_OPTIONS.get(v, NO_OPTIONS[None]))
         print(f"- `{v}`: {'; '.join(sorted(specs)) or '?'}")
     print()
     print("| Scene | Variant | Table 1 | rescaled | Table 2 | ghost (lit / shadows) | base colour raw / rescaled | irradiance (uniform) "

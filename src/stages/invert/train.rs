@@ -107,6 +107,16 @@ pub enum Loss {
     /// 3 states; `docs/results/stage3-survey.md`) it is worse than L1: ghosts 49.7 % against
     /// 40.2 %, training views 1-5 dB lower. An option, not a default.
     BrightL1,
+    /// Σ (L_pc − I_pc)² / (2μ) / (3N), μ the mean of the drawn pixels' captures (one image's):
+    /// a plain squared error, made comparable across images of different exposure by μ.
+    ///
+    /// Not the paper's. Unbiased at any spp like [`Loss::WeightedL2`] (its derivative
+    /// (L − I)/μ is linear in L), but where that one weighs a pixel by 1/(Ī_p + ε), so a shadow
+    /// five times darker than the lit floor counts five times as much per unit of error, this one
+    /// weighs every pixel of an image alike: a surfel's shared base colour is then its lit
+    /// observations' (their errors are the larger in absolute terms) and the bright pixels that
+    /// pin the scale (the sky seen through an opening) are not outweighed by the dark ones.
+    L2,
 }
 
 /// The largest weight [`Loss::BrightL1`] gives a pixel, in units of its image's mean capture.
@@ -114,11 +124,11 @@ pub const BRIGHT_WEIGHT_MAX: f64 = 4.0;
 
 impl Loss {
     /// The loss's constant for an iteration's drawn captures: for [`Loss::WeightedL2`] ε, a
-    /// tenth of their mean; for [`Loss::BrightL1`] μ, their mean; 0 for L1.
+    /// tenth of their mean; for [`Loss::BrightL1`] and [`Loss::L2`] μ, their mean; 0 for L1.
     pub fn epsilon(&self, captures: impl Iterator<Item = [f32; 3]>) -> f64 {
         match self {
             Loss::L1 => 0.0,
-            Loss::WeightedL2 | Loss::BrightL1 => {
+            Loss::WeightedL2 | Loss::BrightL1 | Loss::L2 => {
                 let (mut sum, mut n) = (0.0f64, 0usize);
                 for t in captures {
                     sum += t.iter().map(|&v| v as f64).sum::<f64>();
@@ -147,6 +157,11 @@ impl Loss {
                 let d = d.map(|v| v as f64);
                 let mean = target.iter().map(|&v| v as f64).sum::<f64>() / 3.0;
                 let w = 1.0 / (mean + eps).max(1e-6);
+                (d.iter().map(|v| 0.5 * w * v * v).sum(), d.map(|v| w * v))
+            }
+            Loss::L2 => {
+                let d = d.map(|v| v as f64);
+                let w = 1.0 / eps;
                 (d.iter().map(|v| 0.5 * w * v * v).sum(), d.map(|v| w * v))
             }
             Loss::BrightL1 => {
@@ -433,9 +448,9 @@ pub struct Overrides {
     /// estimation, no MIS: the paper's Table 4 baseline); default: the preset's (full).
     #[arg(long, value_enum)]
     pub estimator: Option<Strategy>,
-    /// Image term: l1 (the paper's), weighted-l2 (unbiased at low spp) or bright-l1 (lit
-    /// pixels weigh more: keeps moved shadows out of the base colour;
-    /// `stages::invert::train::Loss`); default: the preset's (weighted-l2).
+    /// Image term: l1 (the paper's), weighted-l2 (unbiased at low spp, a pixel weighed by
+    /// 1 / its capture), l2 (unbiased, every pixel of an image weighed alike) or bright-l1 (lit
+    /// pixels weigh more; `stages::invert::train::Loss`); default: the preset's (weighted-l2).
     #[arg(long, value_enum)]
     pub loss: Option<Loss>,
     /// How the environments' Adam steps are normalised: texel (per texel, the paper's) or
@@ -1340,10 +1355,11 @@ mod tests {
             let r = [0, 1, 2].map(|_| 2.0 * u());
             let t = [0, 1, 2].map(|_| 2.0 * u());
             let eps = 0.05 + 0.1 * u() as f64;
-            for loss in [Loss::L1, Loss::WeightedL2, Loss::BrightL1] {
+            for loss in [Loss::L1, Loss::WeightedL2, Loss::BrightL1, Loss::L2] {
                 let (_, g) = loss.term(r, t, eps);
                 for c in 0..3 {
-                    if loss != Loss::WeightedL2 && (r[c] - t[c]).abs() < 2e-3 {
+                    let smooth = matches!(loss, Loss::WeightedL2 | Loss::L2);
+                    if !smooth && (r[c] - t[c]).abs() < 2e-3 {
                         continue;
                     }
                     let h = 1e-3f32;
@@ -1381,7 +1397,7 @@ mod tests {
         assert!((value - 0.5 * 1.0).abs() < 1e-12, "{value}"); // weight 0.5, Σ|d| = 1
     }
 
-    /// Why `Loss::WeightedL2` exists: an estimate that is 0 nine times in ten and 10 otherwise
+    /// Why `Loss::WeightedL2` and `Loss::L2` exist: an estimate that is 0 nine times in ten and 10 otherwise
     /// (a bright source found by one sample in ten) has mean 1 and median 0. Against a capture
     /// equal to the mean, the expected L2 derivative is exactly 0 (the fit stays), while L1's
     /// is −0.8 per channel: it keeps pushing the estimate up until its median reaches the
@@ -1398,6 +1414,15 @@ mod tests {
         };
         for g in expect(Loss::WeightedL2) {
             assert!(g.abs() < 1e-12, "weighted L2 expected derivative {g}");
+        }
+        // The plain squared error too (its constant is the captures' mean, here 1).
+        let mu = Loss::L2.epsilon([t].into_iter());
+        assert!((mu - 1.0).abs() < 1e-12);
+        for c in 0..3 {
+            let (_, lo) = Loss::L2.term([0.0; 3], t, mu);
+            let (_, hi) = Loss::L2.term([10.0; 3], t, mu);
+            let g = 0.9 * lo[c] + 0.1 * hi[c];
+            assert!(g.abs() < 1e-12, "L2 expected derivative {g}");
         }
         for g in expect(Loss::L1) {
             assert!((g + 0.8).abs() < 1e-12, "L1 expected derivative {g}");
