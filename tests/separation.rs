@@ -649,7 +649,10 @@ fn the_light_fit_with_four_bounces_casts_the_shadows() {
     assert_no_ghost(&o, 0);
 }
 
-/// The defaults with the plain squared error (`--loss l2`) in place of the weighted one.
+/// The defaults with the plain squared error (`--loss l2`) in place of the weighted one: no
+/// ghost here (0.973). Ignored with the other options' rows: on the Cycles demo the same loss
+/// painted more of the training shadows than the weighted L2 (docs/results/stage3-survey.md,
+/// `l2` against `fit3b`: 32 % against 21 % of the pixels in them), so it is not the default.
 #[test]
 #[ignore]
 fn the_defaults_with_plain_l2_cast_the_shadows() {
