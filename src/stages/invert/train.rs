@@ -246,14 +246,14 @@ pub struct Settings {
     /// Each learning rate's factor at the end of its phase ([`Settings::lr_at`]).
     #[serde(default = "no_decay")]
     pub lr_decay: f32,
-    /// λ_E of eq. training-objectives: the paper's TV on the scene-linear map, as here. It falls
-    /// with the map's scale, so where the captures fix only ρ·E (a surface's base colour times
-    /// the light it gets) it pulls E down and ρ up: on `tests/separation.rs`'s plain floor
-    /// (the defaults, truth 0.55 / 0.50 / 0.45) the open floor ends at 0.72 with λ_E 0.01 and
-    /// 0.665 with 0 (`--loss l2`: 0.707 and 0.653; measured 2026-12-06), the rest of that
-    /// drift coming from elsewhere. The TV is needed (without it the brightest texel there is
-    /// no longer the sun: 141° and 169° off); one divided by the map's mean would not pull,
-    /// and is not yet tried on Cycles scenes.
+    /// λ_E of eq. training-objectives: the paper's TV on the scene-linear map, as here. On
+    /// `tests/separation.rs`'s plain floor (the defaults; truth 0.55 / 0.50 / 0.45) the loop
+    /// walks the open floor's base colour up to 0.72 with λ_E 0.01 and to 0.665 with 0
+    /// (`--loss l2`: 0.707, 0.653), but not through the TV's pull on the map's scale (TV is
+    /// 1-homogeneous, so its gradient has the component TV along E): with that component
+    /// taken out of the gradient it ended at 0.725, the ghost at 0.919 (measured 2026-12-06,
+    /// not kept). The TV is needed: without it the brightest texel there is no longer the sun
+    /// (141° and 169° off).
     pub lambda_tv: f32,
     /// λ of the base-colour prior ([`super::prior`]; not in the paper): its largest pull on a
     /// surfel in units of three pixels' image term. 0: off (old checkpoints and reports).
