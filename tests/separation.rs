@@ -44,6 +44,7 @@
 //! | the same + 4 bounces, L1, material search | 0.964, 0.964, 0.955 | 1.7°, 4.0° (55 %, 31 %) | – |
 //! | the same, the defaults since 2026-12-06 (weighted L2, material search) | 0.932, 0.932, 0.925 | 4.1°, 4.0° (49 %, 32 %) | – |
 //! | the same with `Loss::L2` (a plain squared error per image) for the weighted L2 | 0.973, 0.975, 0.976 | 1.7°, 4.1° (44 %, 30 %) | – |
+//! | the defaults with the maps fixed from iteration 267 (`--env-until 267`); open floor 0.505 for a truth of 0.505 in luminance (the defaults: 0.72) | 0.950, 0.958, 0.962 | 1.7°, 4.1° (53 %, 34 %) | – |
 //!
 //! Also: 800 iterations of lighting alone instead of 267, 0.908-0.938; `Loss::WeightedL2`, a
 //! deeper ghost (0.72-0.79); the true environments held fixed, 1.016 (the measure is sound:
@@ -661,6 +662,25 @@ fn the_defaults_with_plain_l2_cast_the_shadows() {
         Settings {
             loss: Loss::L2,
             ..Settings::fast()
+        },
+    );
+    assert_suns_found(&o);
+    assert_no_ghost(&o, 0);
+}
+
+/// The defaults with the environments fixed once the materials start (`--env-until 267`):
+/// the loop no longer walks the base colour up and the light down along the scale valley
+/// (0.505 for the truth's 0.505 in luminance, where the defaults end at 0.72), but the ghost
+/// sits on the bound (0.950 in the first channel), so it is ignored with the other rows.
+#[test]
+#[ignore = "issue 44: 0.950 of the open floor in the first channel, on the 5 % bound"]
+fn the_defaults_with_the_light_fixed_for_the_materials_cast_the_shadows() {
+    let s = Settings::fast();
+    let o = invert(
+        false,
+        Settings {
+            env_until: Some(s.lighting_until),
+            ..s
         },
     );
     assert_suns_found(&o);

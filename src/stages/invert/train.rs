@@ -213,6 +213,15 @@ pub struct Settings {
     pub lighting_until: u32,
     /// Lighting and base colour before this iteration; everything after.
     pub base_color_until: u32,
+    /// The environments stay as they are from this iteration on (not in the paper, where
+    /// they train to the end; `None`: to the end, as in old checkpoints and reports). Why:
+    /// where the captures fix only a surface's base colour times the light it receives, the
+    /// two trained together walk along that valley, the base colour up and the light down
+    /// (`tests/separation.rs`'s plain floor, the defaults: its base colour 0.50 at iteration
+    /// 267, when the materials start, 0.70 at 2,000 while the maps' mean fell 0.70 → 0.59;
+    /// with the maps fixed from 267 it stays at 0.49 for a truth of 0.505 in luminance).
+    #[serde(default)]
+    pub env_until: Option<u32>,
     /// Samples per pixel at the start, and how they grow.
     pub spp: u32,
     pub spp_schedule: SppSchedule,
@@ -357,6 +366,7 @@ impl Settings {
             env_height: 128,
             env_levels: 1,
             lr_env: 0.03,
+            env_until: None,
             lr_base_color: 0.05,
             lr_metallic: 0.03,
             lr_roughness: 0.03,
@@ -385,6 +395,7 @@ impl Settings {
             base_color_until: 1_200,
             spp: 2,
             lr_env: 0.05,
+            env_until: None,
             lr_base_color: 0.08,
             lr_metallic: 0.05,
             lr_roughness: 0.05,
@@ -510,6 +521,11 @@ pub struct Overrides {
     /// 0.05 fast, 0.03 paper); 0 keeps the starting environments (the light fit's) fixed.
     #[arg(long)]
     pub lr_env: Option<f32>,
+    /// Keep the environments fixed from iteration N on (trained with the base colour, the two
+    /// walk the base colour up and the light down where the captures fix only their product;
+    /// `env_until` in `stages::invert::train::Settings`); default: the preset's (to the end).
+    #[arg(long, value_name = "N")]
+    pub env_until: Option<u32>,
     /// Sub-pixel positions per training pixel whose primary records are traced once and
     /// reused (default: the preset's, 1); more follow the pixel filter more closely and cost
     /// memory in proportion (the report states it).
@@ -573,6 +589,9 @@ impl Overrides {
                 return usage(&format!("--lr-env: expected a number ≥ 0, found {l}"));
             }
             s.lr_env = l;
+        }
+        if let Some(n) = self.env_until {
+            s.env_until = Some(n);
         }
         if let Some(j) = self.primary_jitters {
             if j == 0 {
@@ -1225,7 +1244,11 @@ impl Inverter {
         // loss from 0.30 up to 0.51 and the training views 5-9 dB down; lr / levels kept the
         // fit but left most of the ghost shadows (34 % of uniform-albedo pixels); lr / √levels,
         // the steps' sum if the levels' noise is independent, gave both (28 %, Table 1 27.3 dB).
-        let lr = s.lr_at(s.lr_env, 0, it) / (s.env_levels as f32).sqrt();
+        let lr = if s.env_until.is_some_and(|n| it >= n) {
+            0.0
+        } else {
+            s.lr_at(s.lr_env, 0, it) / (s.env_levels as f32).sqrt()
+        };
         self.adam.set_schedule(g_env, Schedule::Constant { lr });
         let rule = s.env_update;
         let step = |adam: &mut Adam, g: usize, params: &mut [f32], grads: &[f32]| match rule {
@@ -1494,6 +1517,8 @@ mod tests {
         assert!(!apply(&["D"]).light_fit_texture);
         assert!(apply(&["D", "--light-fit-texture"]).light_fit_texture);
         assert_eq!(apply(&["D", "--lr-env", "0"]).lr_env, 0.0);
+        assert_eq!(apply(&["D"]).env_until, None);
+        assert_eq!(apply(&["D", "--env-until", "267"]).env_until, Some(267));
         assert_eq!(
             apply(&["D", "--papers-method", "--bounces", "4"]).bounces,
             4
