@@ -219,7 +219,11 @@ pub struct Settings {
     /// two trained together walk along that valley, the base colour up and the light down
     /// (`tests/separation.rs`'s plain floor, the defaults: its base colour 0.50 at iteration
     /// 267, when the materials start, 0.70 at 2,000 while the maps' mean fell 0.70 → 0.59;
-    /// with the maps fixed from 267 it stays at 0.49 for a truth of 0.505 in luminance).
+    /// with the maps fixed from 267 it stays at 0.49 for a truth of 0.505 in luminance). On
+    /// Cycles it loses (docs/results/stage3-survey.md, `freeze` against `fit3b`): Table 1
+    /// raw 24.38 against 25.88 dB on the demo, 26.77 against 29.34 on the sunroom, irradiance
+    /// 2-4 points worse; the maps still learn during the materials phase what the short
+    /// lighting-only phase did not. So an option, off in both presets.
     #[serde(default)]
     pub env_until: Option<u32>,
     /// Samples per pixel at the start, and how they grow.
