@@ -493,6 +493,14 @@ fn assert_suns_found(o: &Outcome) {
     }
 }
 
+/// The plain floor inverted with `settings`: the suns found ([`assert_suns_found`]) and no
+/// ghost ([`assert_no_ghost`]).
+fn casts_the_shadows(settings: Settings) {
+    let o = invert(false, settings);
+    assert_suns_found(&o);
+    assert_no_ghost(&o, 0);
+}
+
 #[test]
 fn shadows_are_explained_by_occlusion_not_paint() {
     let o = invert(false, settings());
@@ -630,24 +638,17 @@ fn a_lighting_fit_keeps_the_checker() {
 #[test]
 #[ignore = "issue 44: the defaults leave 0.93 of the open floor inside the shadows here"]
 fn the_defaults_cast_the_shadows() {
-    let o = invert(false, Settings::fast());
-    assert_suns_found(&o);
-    assert_no_ghost(&o, 0);
+    casts_the_shadows(Settings::fast());
 }
 
 /// The light fit and four bounces with the paper's L1 (`--loss l1`): no ghost on the plain
 /// floor, the suns within 10° and carrying more than a tenth of the light.
 #[test]
 fn the_light_fit_with_four_bounces_casts_the_shadows() {
-    let o = invert(
-        false,
-        Settings {
-            loss: Loss::L1,
-            ..Settings::fast()
-        },
-    );
-    assert_suns_found(&o);
-    assert_no_ghost(&o, 0);
+    casts_the_shadows(Settings {
+        loss: Loss::L1,
+        ..Settings::fast()
+    });
 }
 
 /// The defaults with the plain squared error (`--loss l2`) in place of the weighted one: no
@@ -657,15 +658,10 @@ fn the_light_fit_with_four_bounces_casts_the_shadows() {
 #[test]
 #[ignore]
 fn the_defaults_with_plain_l2_cast_the_shadows() {
-    let o = invert(
-        false,
-        Settings {
-            loss: Loss::L2,
-            ..Settings::fast()
-        },
-    );
-    assert_suns_found(&o);
-    assert_no_ghost(&o, 0);
+    casts_the_shadows(Settings {
+        loss: Loss::L2,
+        ..Settings::fast()
+    });
 }
 
 /// The defaults with the environments fixed once the materials start (`--env-until 267`):
@@ -678,13 +674,8 @@ fn the_defaults_with_plain_l2_cast_the_shadows() {
 #[ignore = "issue 44: 0.950 of the open floor in the first channel, on the 5 % bound"]
 fn the_defaults_with_the_light_fixed_for_the_materials_cast_the_shadows() {
     let s = Settings::fast();
-    let o = invert(
-        false,
-        Settings {
-            env_until: Some(s.lighting_until),
-            ..s
-        },
-    );
-    assert_suns_found(&o);
-    assert_no_ghost(&o, 0);
+    casts_the_shadows(Settings {
+        env_until: Some(s.lighting_until),
+        ..s
+    });
 }

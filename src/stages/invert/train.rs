@@ -153,15 +153,14 @@ impl Loss {
                 d.iter().map(|v| v.abs() as f64).sum(),
                 d.map(|v| v.signum() as f64),
             ),
-            Loss::WeightedL2 => {
+            Loss::WeightedL2 | Loss::L2 => {
                 let d = d.map(|v| v as f64);
-                let mean = target.iter().map(|&v| v as f64).sum::<f64>() / 3.0;
-                let w = 1.0 / (mean + eps).max(1e-6);
-                (d.iter().map(|v| 0.5 * w * v * v).sum(), d.map(|v| w * v))
-            }
-            Loss::L2 => {
-                let d = d.map(|v| v as f64);
-                let w = 1.0 / eps;
+                let w = if *self == Loss::L2 {
+                    1.0 / eps
+                } else {
+                    let mean = target.iter().map(|&v| v as f64).sum::<f64>() / 3.0;
+                    1.0 / (mean + eps).max(1e-6)
+                };
                 (d.iter().map(|v| 0.5 * w * v * v).sum(), d.map(|v| w * v))
             }
             Loss::BrightL1 => {
