@@ -41,8 +41,8 @@ def test_run_skips_finished_stages_and_evaluate_writes_both_tables(tiny_dataset,
     assert p.returncode == 0 and "evaluate: skipped (up to date)" in p.stderr, p.stderr
     # Stage 3's options given to `run` are compared with what its report records: the same
     # values keep it (options not given are not compared: `invert`'s --iterations 4 counts).
-    # (stage 3's defaults, spelled out: weighted-l2, four bounces, the light fit)
-    p = run("run", ds, "-o", work, "--iterations", "4", "--loss", "weighted-l2", "--bounces", "4",
+    # (stage 3's defaults, spelled out: l2, four bounces, the light fit)
+    p = run("run", ds, "-o", work, "--iterations", "4", "--loss", "l2", "--bounces", "4",
             "--light-fit")
     assert p.returncode == 0 and "stage 3: invert: skipped (up to date)" in p.stderr, p.stderr
 
