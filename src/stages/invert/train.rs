@@ -541,6 +541,14 @@ pub struct Overrides {
     /// 0.05 fast, 0.03 paper); 0 keeps the starting environments (the light fit's) fixed.
     #[arg(long)]
     pub lr_env: Option<f32>,
+    /// Adam's learning rate on the base colour's logits (default: the preset's, 0.08 fast,
+    /// 0.05 paper).
+    #[arg(long)]
+    pub lr_base_color: Option<f32>,
+    /// Each learning rate's factor at the end of its phase, the rate decaying exponentially
+    /// to it (`Settings::lr_at`; default: the preset's, 0.1); 1 keeps the rates constant.
+    #[arg(long)]
+    pub lr_decay: Option<f32>,
     /// Keep the environments fixed from iteration N on (trained with the base colour, the two
     /// walk the base colour up and the light down where the captures fix only their product;
     /// `env_until` in `stages::invert::train::Settings`); default: the preset's (to the end).
@@ -609,6 +617,22 @@ impl Overrides {
                 return usage(&format!("--lr-env: expected a number ≥ 0, found {l}"));
             }
             s.lr_env = l;
+        }
+        if let Some(l) = self.lr_base_color {
+            if !(l.is_finite() && l >= 0.0) {
+                return usage(&format!(
+                    "--lr-base-color: expected a number ≥ 0, found {l}"
+                ));
+            }
+            s.lr_base_color = l;
+        }
+        if let Some(d) = self.lr_decay {
+            if !(d.is_finite() && d > 0.0 && d <= 1.0) {
+                return usage(&format!(
+                    "--lr-decay: expected a number in (0, 1], found {d}"
+                ));
+            }
+            s.lr_decay = d;
         }
         if let Some(n) = self.env_until {
             s.env_until = Some(n);
@@ -1537,6 +1561,13 @@ mod tests {
         assert!(!apply(&["D"]).light_fit_texture);
         assert!(apply(&["D", "--light-fit-texture"]).light_fit_texture);
         assert_eq!(apply(&["D", "--lr-env", "0"]).lr_env, 0.0);
+        assert_eq!(apply(&["D", "--lr-decay", "0.01"]).lr_decay, 0.01);
+        assert_eq!(apply(&["D", "--lr-base-color", "0.02"]).lr_base_color, 0.02);
+        for bad in [["D", "--lr-decay", "0"], ["D", "--lr-decay", "1.5"]] {
+            let cli = Cli::try_parse_from(std::iter::once("invert").chain(bad)).unwrap();
+            let e = cli.o.apply(Settings::fast()).unwrap_err().to_string();
+            assert!(e.contains("--lr-decay"), "{bad:?}: {e}");
+        }
         assert_eq!(apply(&["D"]).env_until, None);
         assert_eq!(apply(&["D", "--env-until", "267"]).env_until, Some(267));
         assert_eq!(
