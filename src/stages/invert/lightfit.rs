@@ -39,11 +39,12 @@
 //! what it should to the shape of the light (the demo's irradiance error 7.8 % against 11.5 %,
 //! training views +0.4-2.6 dB, Table 1 after the median albedo rescale 27.73 against 26.37 dB;
 //! on the sunroom 9.8 % against 11.6 %, +0.6-0.7 dB, 29.58 against 29.45), but the loop then
-//! ends with a base colour 8-25 % too bright everywhere (albedo / truth 1.08 sunroom, 1.25
-//! demo, against 0.94-0.98 without), which costs Table 1 without the rescale 3 dB; what sets
-//! that scale with τ free is not yet understood (the seen sky should pin it, as it does on
-//! `tests/separation.rs`'s floor, where the fit's ρ is within 1 % of the truth). Stage 3 learns
-//! each surfel's own colour, starting from the group's (ρ_g; τ only shapes the fit's light).
+//! ends with a base colour 8-20 % too dark everywhere (the evaluation's truth / recovered ratio
+//! 1.08 sunroom, 1.25 demo, against 0.94-0.98 without), which costs Table 1 without the
+//! rescale 3 dB; what sets that scale with τ free is not yet understood (the seen sky should
+//! pin it, as it does on `tests/separation.rs`'s floor, where the fit's ρ is within 1 % of the
+//! truth). Stage 3 learns each surfel's own colour, starting from the group's (ρ_g; τ only
+//! shapes the fit's light).
 //!
 //! b_k is the light the point gets from the surfaces around it (eq. rendering-equation's
 //! indirect term, one bounce), and it is *measured*, not modelled: in the directions a surface
