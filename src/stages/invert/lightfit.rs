@@ -69,7 +69,13 @@
 //! value, and a sun costs what it costs, wherever the shadows put it. Suns of one colour,
 //! because a sun per channel (the version before) could explain a red patch of texture by a
 //! red sun that only that patch saw: the demo's maps came out with pure red, green and blue
-//! suns scattered over the sky.
+//! suns scattered over the sky. The suns' colour is seen only through what they light, so it
+//! trades with the colour of the surfaces they light most: on `tests/separation.rs`'s plain
+//! floor (the truth 0.55 / 0.50 / 0.45 under a white sun) the fit's floor keeps the
+//! chromaticity of its grey start, 0.503 / 0.504 / 0.503 (the luminance within 1 %), κ and the
+//! unseen zenith taking the warmth; with κ held white it gets halfway, 0.521 / 0.501 / 0.475,
+//! and the box's blue falls to 0.549 for 0.60 (measured 2026-12-06, not kept). What would pin
+//! it (a prior on the suns' colour, the box's sunlit faces weighed more) is open.
 //!
 //! The pixels that see no surface look at the environment itself, so each texel they land in
 //! gets the row E_k,t = their mean (a direct measurement; it pins the scale that ρ and E
