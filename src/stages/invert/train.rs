@@ -593,12 +593,7 @@ impl Overrides {
             s.env_levels = v;
         }
         if let Some(l) = self.base_color_prior {
-            if !(l.is_finite() && l >= 0.0) {
-                return usage(&format!(
-                    "--base-color-prior: expected a number ≥ 0, found {l}"
-                ));
-            }
-            s.lambda_base_color = l;
+            s.lambda_base_color = non_negative("--base-color-prior", l)?;
         }
         if let Some(v) = self.light_fit {
             s.light_fit = v;
@@ -613,18 +608,10 @@ impl Overrides {
             s.bounces = b;
         }
         if let Some(l) = self.lr_env {
-            if !(l.is_finite() && l >= 0.0) {
-                return usage(&format!("--lr-env: expected a number ≥ 0, found {l}"));
-            }
-            s.lr_env = l;
+            s.lr_env = non_negative("--lr-env", l)?;
         }
         if let Some(l) = self.lr_base_color {
-            if !(l.is_finite() && l >= 0.0) {
-                return usage(&format!(
-                    "--lr-base-color: expected a number ≥ 0, found {l}"
-                ));
-            }
-            s.lr_base_color = l;
+            s.lr_base_color = non_negative("--lr-base-color", l)?;
         }
         if let Some(d) = self.lr_decay {
             if !(d.is_finite() && d > 0.0 && d <= 1.0) {
@@ -648,6 +635,18 @@ impl Overrides {
         }
         s.check()?;
         Ok(s)
+    }
+}
+
+/// `value` of `option` when it is a finite number ≥ 0 (a weight or a learning rate), else the
+/// usage error naming the option.
+fn non_negative(option: &str, value: f32) -> crate::Result<f32> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(value)
+    } else {
+        Err(crate::Error::Usage(format!(
+            "{option}: expected a number ≥ 0, found {value}"
+        )))
     }
 }
 
@@ -1574,11 +1573,18 @@ mod tests {
             apply(&["D", "--papers-method", "--bounces", "4"]).bounces,
             4
         );
-        // A rate below 0 is a usage error naming the option.
-        let cli = Cli::try_parse_from(["invert", "D", "--lr-env=-1"]).unwrap();
-        match cli.o.apply(Settings::fast()) {
-            Err(crate::Error::Usage(m)) => assert!(m.starts_with("--lr-env:"), "{m}"),
-            other => panic!("{other:?}"),
+        // A weight or rate below 0, or not a number, is a usage error naming the option.
+        for option in ["--lr-env", "--lr-base-color", "--base-color-prior"] {
+            for bad in ["-1", "NaN"] {
+                let arg = format!("{option}={bad}");
+                let cli = Cli::try_parse_from(["invert", "D", &arg]).unwrap();
+                match cli.o.apply(Settings::fast()) {
+                    Err(crate::Error::Usage(m)) => {
+                        assert!(m.starts_with(&format!("{option}:")), "{m}")
+                    }
+                    other => panic!("{arg}: {other:?}"),
+                }
+            }
         }
     }
 }
