@@ -628,14 +628,62 @@ fn the_avx2_traversals_match_the_baseline_bit_for_bit() {
     }
 }
 
+/// What two scenes that hold the same surfels in different trees composite must not depend on
+/// the tree: the same hits (component, surfel) in the same order, with weights and record sums
+/// equal up to rounding. Tolerance: the batch's running transmittance is a product of up to a
+/// few hundred f32 factors taken in discovery order, each rounding by ≤ 2⁻²⁴ relative, so a
+/// weight may move by ~1e-5 of itself (absolute 1e-6 below w = 0.1, where relative error means
+/// little); the record's sums add up to a few hundred such weights, so 1e-4 of the sum
+/// (absolute below 1); transmittance 1e-5. Returns the number of hits seen.
+fn same_composites(
+    pm: &lightfuse::trace::Placed,
+    pf: &lightfuse::trace::Placed,
+    rng: &mut SplitMix,
+    rays: usize,
+) -> usize {
+    let mut total_hits = 0;
+    for r in 0..rays {
+        let (o, d) = random_ray(rng);
+        let (mut hm, mut hf) = (Vec::new(), Vec::new());
+        let a = pm.composite_hits(o, d, 0.0, f32::INFINITY, &mut hm);
+        let b = pf.composite_hits(o, d, 0.0, f32::INFINITY, &mut hf);
+        let ids = |h: &[lightfuse::trace::WeightedHit]| -> Vec<(u32, u32)> {
+            h.iter().map(|h| (h.component, h.index)).collect()
+        };
+        assert_eq!(ids(&hm), ids(&hf), "ray {r}: other hits");
+        total_hits += hm.len();
+        for (x, y) in hm.iter().zip(&hf) {
+            assert!(
+                (x.w - y.w).abs() <= 1e-5 * x.w.max(1e-1),
+                "ray {r}: {x:?} vs {y:?}"
+            );
+        }
+        assert_eq!(a.hits, b.hits);
+        let sums = |s: &lightfuse::trace::SurfaceRecord| {
+            let mut v = vec![s.depth, s.metallic, s.roughness, s.alpha];
+            v.extend(s.position);
+            v.extend(s.normal);
+            v.extend(s.base_color);
+            v
+        };
+        for (x, y) in sums(&a).iter().zip(sums(&b)) {
+            assert!(
+                (x - y).abs() <= 1e-4 * x.abs().max(1.0),
+                "ray {r}: {a:?} vs {b:?}"
+            );
+        }
+        let (ta, tb) = (
+            pm.transmittance(o, d, 0.0, f32::INFINITY),
+            pf.transmittance(o, d, 0.0, f32::INFINITY),
+        );
+        assert!((ta - tb).abs() <= 1e-5, "ray {r}: {ta} vs {tb}");
+    }
+    total_hits
+}
+
 /// Stage 2's per-step scenes are built with obvhs's very fast build
 /// ([`TraceScene::from_components_for_few_rays`]): a different tree, so the same hits are found
-/// in another order. What a ray composites must not depend on it: the same hits (component,
-/// surfel) in the same order, with weights and record sums equal up to rounding. Tolerance:
-/// the batch's running transmittance is a product of up to a few hundred f32 factors taken in
-/// discovery order, each rounding by ≤ 2⁻²⁴ relative, so a weight may move by ~1e-5 of itself
-/// (absolute 1e-6 below w = 0.1, where relative error means little); the record's sums add up
-/// to a few hundred such weights, so 1e-4 of the sum (absolute below 1); transmittance 1e-5.
+/// in another order ([`same_composites`]).
 #[test]
 fn the_few_rays_build_composites_what_the_medium_build_does() {
     for (seed, alpha, n) in [(21u64, (0.3, 1.0), 1500), (22, (0.004, 0.04), 3000)] {
@@ -644,47 +692,62 @@ fn the_few_rays_build_composites_what_the_medium_build_does() {
         let medium = TraceScene::from_components(&parts);
         let fast = TraceScene::from_components_for_few_rays(&parts);
         let (pm, pf) = (medium.place(&transforms), fast.place(&transforms));
-        let mut rng = SplitMix(seed + 500);
-        let mut total_hits = 0;
-        for r in 0..300 {
-            let (o, d) = random_ray(&mut rng);
-            let (mut hm, mut hf) = (Vec::new(), Vec::new());
-            let a = pm.composite_hits(o, d, 0.0, f32::INFINITY, &mut hm);
-            let b = pf.composite_hits(o, d, 0.0, f32::INFINITY, &mut hf);
-            let ids = |h: &[lightfuse::trace::WeightedHit]| -> Vec<(u32, u32)> {
-                h.iter().map(|h| (h.component, h.index)).collect()
-            };
-            assert_eq!(ids(&hm), ids(&hf), "ray {r}: other hits");
-            total_hits += hm.len();
-            for (x, y) in hm.iter().zip(&hf) {
-                assert!(
-                    (x.w - y.w).abs() <= 1e-5 * x.w.max(1e-1),
-                    "ray {r}: {x:?} vs {y:?}"
-                );
-            }
-            assert_eq!(a.hits, b.hits);
-            let sums = |s: &lightfuse::trace::SurfaceRecord| {
-                let mut v = vec![s.depth, s.metallic, s.roughness, s.alpha];
-                v.extend(s.position);
-                v.extend(s.normal);
-                v.extend(s.base_color);
-                v
-            };
-            for (x, y) in sums(&a).iter().zip(sums(&b)) {
-                assert!(
-                    (x - y).abs() <= 1e-4 * x.abs().max(1.0),
-                    "ray {r}: {a:?} vs {b:?}"
-                );
-            }
-            let (ta, tb) = (
-                pm.transmittance(o, d, 0.0, f32::INFINITY),
-                pf.transmittance(o, d, 0.0, f32::INFINITY),
-            );
-            assert!((ta - tb).abs() <= 1e-5, "ray {r}: {ta} vs {tb}");
-        }
+        let total_hits = same_composites(&pm, &pf, &mut SplitMix(seed + 500), 300);
         assert!(
             total_hits > 300,
             "the rays must hit something: {total_hits}"
         );
+    }
+}
+
+/// Stage 2 refits its scene between rebuilds ([`TraceScene::refit`]): built on one set of
+/// surfels, then every surfel moved, turned, rescaled, faded or brightened (some to an opacity
+/// that can never be hit, whose box is a point) and recoloured, and the old tree refitted.
+/// It composites what a tree built on the moved surfels does ([`same_composites`]) and what the
+/// f64 reference does ([`close`]), for faint and opaque scenes, and a second refit (as in
+/// consecutive steps) too.
+#[test]
+fn a_refitted_scene_composites_what_a_rebuilt_one_does() {
+    for (seed, alpha, n) in [(31u64, (0.3, 1.0), 1500), (32, (0.004, 0.04), 3000)] {
+        let (mut scene, transforms) = random_scene(seed, alpha, n);
+        let parts: Vec<&Surfels> = scene.components.iter().map(|c| &c.surfels).collect();
+        let mut refitted = TraceScene::from_components_for_few_rays(&parts);
+        let mut rng = SplitMix(seed + 1);
+        for round in 0..2 {
+            for c in &mut scene.components {
+                let s = &mut c.surfels;
+                for i in 0..s.len() {
+                    for k in 0..3 {
+                        s.position[i][k] += rng.range(-0.15, 0.15);
+                    }
+                    if rng.f32() < 0.5 {
+                        s.rotation[i] = rng.unit_quat();
+                    }
+                    for k in 0..2 {
+                        s.scale[i][k] *= rng.range(0.5, 1.6);
+                    }
+                    s.opacity[i] = match i % 11 {
+                        0 => 1e-4, // never reaches MIN_ALPHA: a point box
+                        _ => (s.opacity[i] * rng.range(0.5, 1.5)).min(1.0),
+                    };
+                    s.base_color[i] = [rng.f32(), rng.f32(), rng.f32()];
+                    s.metallic[i] = rng.f32();
+                    s.roughness[i] = rng.f32();
+                }
+            }
+            let parts: Vec<&Surfels> = scene.components.iter().map(|c| &c.surfels).collect();
+            refitted.refit(&parts);
+            let rebuilt = TraceScene::from_components(&parts);
+            let (pr, pb) = (refitted.place(&transforms), rebuilt.place(&transforms));
+            let hits = same_composites(&pb, &pr, &mut SplitMix(seed + 10 + round), 300);
+            assert!(hits > 300, "the rays must hit something: {hits}");
+            let mut rng_ray = SplitMix(seed + 20 + round);
+            for r in 0..60 {
+                let (o, d) = random_ray(&mut rng_ray);
+                let fast = pr.composite(o, d, 0.0, f32::INFINITY);
+                let slow = composite_brute(&scene, &transforms, o, d, 0.0, f32::INFINITY);
+                close(&format!("round {round} ray {r}"), &fast, &slow, 1e-3);
+            }
+        }
     }
 }

@@ -3,7 +3,8 @@
 //! material along a ray.
 //!
 //! **Two levels.** [`TraceScene`] builds one BVH (an `obvhs` compressed wide BVH8) per component,
-//! in the component's own frame (the reference state's world frame, docs/design.md §2), once.
+//! in the component's own frame (the reference state's world frame, docs/design.md §2), once
+//! (stage 2, whose surfels move at every step, refits its boxes between builds: [`TraceScene::refit`]).
 //! [`TraceScene::place`] takes a state's or a layout's rigid transforms and returns a [`Placed`]
 //! scene: the top level is the list of instances with their world bounds, so a rearrangement
 //! costs a few hundred nanoseconds and never touches a component's BVH. A ray is moved into
@@ -39,6 +40,7 @@ mod node;
 mod placed;
 mod record;
 pub mod reference;
+mod refit;
 mod scene;
 mod surfel;
 

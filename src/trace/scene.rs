@@ -31,22 +31,6 @@ impl Blas {
             n < u32::MAX as usize,
             "a component holds at most 2³² − 1 surfels"
         );
-        let bounds: Vec<Aabb> = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let (lo, hi) =
-                    surfel_bounds(s.position[i], s.rotation[i], s.scale[i], s.opacity[i]);
-                Aabb::new(lo.into(), hi.into())
-            })
-            .collect();
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for b in &bounds {
-            for k in 0..3 {
-                lo[k] = lo[k].min(b.min[k]);
-                hi[k] = hi[k].max(b.max[k]);
-            }
-        }
         if n == 0 {
             return Blas {
                 bvh: None,
@@ -57,34 +41,78 @@ impl Blas {
                 hi: [0.0; 3],
             };
         }
+        let bounds = bounds_of(s);
+        let (lo, hi) = extent(&bounds);
         let bvh = build_cwbvh(&bounds, params, &mut Duration::default());
         let index = bvh.primitive_indices.clone();
-        let hit = index
-            .par_iter()
-            .map(|&i| {
-                let k = i as usize;
-                HitSurfel::new(s.position[k], s.rotation[k], s.scale[k], s.opacity[k], i)
-            })
-            .collect();
-        let material = index
-            .iter()
-            .map(|&i| {
-                let i = i as usize;
-                Material {
-                    base_color: s.base_color[i],
-                    metallic: s.metallic[i],
-                    roughness: s.roughness[i],
-                }
-            })
-            .collect();
         Blas {
             bvh: Some(bvh),
-            hit,
-            material,
+            hit: hit_data(s, &index),
+            material: index.iter().map(|&i| material_of(s, i)).collect(),
             index,
             lo,
             hi,
         }
+    }
+
+    /// The same surfels (same count and order) moved: new boxes in the old tree
+    /// ([`super::refit`]), new hit data and materials in the old leaf order.
+    fn refit(&mut self, s: &Surfels) {
+        assert_eq!(self.index.len(), s.len(), "refit: surfel count changed");
+        let Some(bvh) = self.bvh.as_mut() else {
+            return;
+        };
+        let bounds = bounds_of(s);
+        (self.lo, self.hi) = extent(&bounds);
+        super::refit::refit(bvh, &bounds);
+        self.hit = hit_data(s, &self.index);
+        for (m, &i) in self.material.iter_mut().zip(&self.index) {
+            *m = material_of(s, i);
+        }
+    }
+}
+
+/// Each surfel's box ([`surfel_bounds`]), in the component's order.
+fn bounds_of(s: &Surfels) -> Vec<Aabb> {
+    (0..s.len())
+        .into_par_iter()
+        .map(|i| {
+            let (lo, hi) = surfel_bounds(s.position[i], s.rotation[i], s.scale[i], s.opacity[i]);
+            Aabb::new(lo.into(), hi.into())
+        })
+        .collect()
+}
+
+/// The box around all of `bounds`.
+fn extent(bounds: &[Aabb]) -> ([f32; 3], [f32; 3]) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for b in bounds {
+        for k in 0..3 {
+            lo[k] = lo[k].min(b.min[k]);
+            hi[k] = hi[k].max(b.max[k]);
+        }
+    }
+    (lo, hi)
+}
+
+/// What the hit test reads, in leaf order (`index`: the surfel at each leaf slot).
+fn hit_data(s: &Surfels, index: &[u32]) -> Vec<HitSurfel> {
+    index
+        .par_iter()
+        .map(|&i| {
+            let k = i as usize;
+            HitSurfel::new(s.position[k], s.rotation[k], s.scale[k], s.opacity[k], i)
+        })
+        .collect()
+}
+
+fn material_of(s: &Surfels, i: u32) -> Material {
+    let i = i as usize;
+    Material {
+        base_color: s.base_color[i],
+        metallic: s.metallic[i],
+        roughness: s.roughness[i],
     }
 }
 
@@ -142,13 +170,25 @@ impl TraceScene {
                 "set_materials: surfel count changed"
             );
             for (m, &i) in b.material.iter_mut().zip(&b.index) {
-                let i = i as usize;
-                *m = Material {
-                    base_color: s.base_color[i],
-                    metallic: s.metallic[i],
-                    roughness: s.roughness[i],
-                };
+                *m = material_of(s, i);
             }
+        }
+    }
+
+    /// Moves the surfels of the scene to `components`' (the surfels it was built from, same
+    /// order and counts, any of position, rotation, scale, opacity or material changed) by
+    /// refitting each BVH's boxes rather than building it again: a fraction of a build's time,
+    /// for a tree that is slower to traverse the further the surfels have drifted since it was
+    /// built. What a ray composites is the same either way up to the order in which its hits are
+    /// found, i.e. rounding (`tests/trace.rs`). Panics if the counts differ.
+    pub fn refit(&mut self, components: &[&Surfels]) {
+        assert_eq!(
+            components.len(),
+            self.blas.len(),
+            "refit: one Surfels per component"
+        );
+        for (b, s) in self.blas.iter_mut().zip(components) {
+            b.refit(s);
         }
     }
 

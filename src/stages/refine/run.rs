@@ -1,7 +1,7 @@
 //! Stage 2 from files to files: `<work>/scene.glb` (stage 1) and the dataset's captures to
 //! `<work>/refined.glb` and `<work>/refine/{report.json, log.jsonl, checkpoint.json}`.
 
-use super::train::{Refiner, Settings, TrainState};
+use super::train::{Refiner, Settings, TrainState, REBUILD_EVERY};
 use crate::error::{Error, Result};
 use crate::eval::geometry::{tally_state, GeometryFigures, GeometryTally, LeakOptions};
 use crate::io::dataset::Observation;
@@ -18,8 +18,9 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Checkpoints are written this often (iterations), and at the end.
-const CHECKPOINT_EVERY: u32 = 100;
+/// Checkpoints are written this often (iterations), and at the end: where the loop builds its
+/// BVH afresh ([`REBUILD_EVERY`]), so that a run resumed from one continues bit for bit.
+const CHECKPOINT_EVERY: u32 = REBUILD_EVERY;
 /// log.jsonl gets the mean losses of each window of this many iterations.
 const LOG_EVERY: u32 = 25;
 

@@ -165,6 +165,16 @@ pub struct TrainState<'a> {
     pub transforms: Vec<Rigid>,
 }
 
+/// Steps between full BVH builds in [`Refiner::step`]; in between, the previous step's tree is
+/// refitted to the moved surfels ([`TraceScene::refit`]), and it is built afresh whenever
+/// surfels were added or removed. A step moves each surfel by a small fraction of its size, so a
+/// hundred steps leave the tree's grouping still a good one while the build, which was most of
+/// a step's time when made every step, is paid a few times a run. What a ray composites does not
+/// depend on the tree beyond the order its hits are found in, i.e. rounding (`tests/trace.rs`).
+/// The refine stage checkpoints at multiples of it, so a resumed run builds where an
+/// uninterrupted one did and continues bit for bit.
+pub const REBUILD_EVERY: u32 = 100;
+
 /// The refinement: raw geometry of every component, Adam, and where the run stands.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Refiner {
@@ -175,6 +185,30 @@ pub struct Refiner {
     pub pruned: usize,
     pub filled: usize,
     rng: u64,
+    /// The traced scene of the last step, to be refitted by the next ([`REBUILD_EVERY`]).
+    #[serde(skip)]
+    traced: TracedCache,
+}
+
+/// The scene [`Refiner::step`] keeps between steps: derived from the components, so neither
+/// written to a checkpoint nor copied by a clone (a copy builds its own at its next step).
+#[derive(Default)]
+struct TracedCache(Option<TraceScene>);
+
+impl Clone for TracedCache {
+    fn clone(&self) -> Self {
+        TracedCache(None)
+    }
+}
+
+impl std::fmt::Debug for TracedCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "TracedCache(built)"
+        } else {
+            "TracedCache(empty)"
+        })
+    }
 }
 
 /// A patch's camera: the view's intrinsics shifted so that pixel (x0, y0) is its (0, 0).
@@ -237,6 +271,7 @@ impl Refiner {
             iteration: 0,
             pruned: 0,
             filled: 0,
+            traced: TracedCache::default(),
         }
     }
 
@@ -310,9 +345,14 @@ impl Refiner {
         let s = self.settings.clone();
         let surfels = self.surfels();
         let refs: Vec<&Surfels> = surfels.iter().collect();
-        // Rebuilt every step for a few thousand rays: the build, not the tracing, is the step's
-        // cost, so the faster build.
-        let scene = TraceScene::from_components_for_few_rays(&refs);
+        // Built for a few thousand rays a step, so the faster build; refitted in between.
+        let scene = match self.traced.0.take() {
+            Some(mut scene) if self.iteration % REBUILD_EVERY != 0 => {
+                scene.refit(&refs);
+                scene
+            }
+            _ => TraceScene::from_components_for_few_rays(&refs),
+        };
         let patches = self.draw_patches(states);
         let side = s.patch.min(
             states
@@ -363,7 +403,7 @@ impl Refiner {
         // Backward, then Adam.
         let g_surfels = backward(&placed, &refs, &rays, &grads, &patches, per_patch);
         drop(placed);
-        drop(scene);
+        self.traced.0 = Some(scene);
         losses.scale = self.update_surfels(&surfels, &g_surfels);
         losses.total =
             losses.alpha + losses.scale + losses.depth + losses.normal + losses.depth_normal;
@@ -478,6 +518,9 @@ impl Refiner {
             added += n;
         }
         self.filled += added;
+        if added > 0 {
+            self.traced.0 = None;
+        }
         added
     }
 
@@ -492,6 +535,7 @@ impl Refiner {
                 continue;
             }
             self.pruned += comp.len() - keep.len();
+            self.traced.0 = None;
             comp.gather(&keep);
             for (name, _) in GROUPS {
                 let gi = self
