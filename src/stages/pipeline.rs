@@ -343,8 +343,12 @@ mod tests {
             "an ablation's partial evaluation"
         );
         // Stage 3: the options given; a report written before a field was trained with its
-        // default (the paper's L1, one bounce, no light fit, no material search).
-        let fast = Settings::fast();
+        // default (the paper's L1, one bounce, no light fit, no material search), and with
+        // the rates decaying to a tenth, the fast preset's until 0.3.
+        let fast = Settings {
+            lr_decay: 0.1,
+            ..Settings::fast()
+        };
         let mut old = serde_json::to_value(&fast).unwrap();
         for later in [
             "loss",
@@ -390,6 +394,10 @@ mod tests {
             },
             Overrides {
                 seed: Some(1),
+                ..Default::default()
+            },
+            Overrides {
+                lr_decay: Some(0.3),
                 ..Default::default()
             },
         ];
