@@ -12,7 +12,8 @@
 //! are stored as 8-bit offsets from the node's corner; this writes them exactly as its
 //! `bvh2_to_cwbvh` conversion does (the same `p`, the same power-of-two exponent `e`, floor for
 //! the minima and ceil for the maxima, clamped to 0..=255), so a refit to unchanged bounds gives
-//! the built nodes back bit for bit (`tests/trace.rs`).
+//! the built nodes back bit for bit (the tests below; `tests/trace.rs` checks what a refitted
+//! scene composites).
 //!
 //! The layout read here is obvhs's (`cwbvh::node::CwBvhNode`): a node's internal children are
 //! stored at `child_base_idx` onwards in slot order (the k-th set bit of `imask` is node
@@ -45,16 +46,16 @@ pub(crate) fn refit(bvh: &mut CwBvh, bounds: &[Aabb]) {
 /// Refits node `n` and its subtree; returns the node's exact box (the union of its primitives').
 fn refit_node(nodes: &mut [CwBvhNode], prims: &[u32], bounds: &[Aabb], n: usize) -> Aabb {
     let node = nodes[n];
-    let mut child_box = [Aabb::empty(); 8];
-    let mut occupied = [false; 8];
+    // Each occupied slot's exact box; an empty slot's meta is 0.
+    let mut child_box: [Option<Aabb>; 8] = [None; 8];
+    let mut aabb = Aabb::empty();
     let mut internal_seen = 0;
-    for slot in 0..8 {
+    for (slot, child) in child_box.iter_mut().enumerate() {
         let meta = node.child_meta[slot];
         if meta == 0 {
             continue;
         }
-        occupied[slot] = true;
-        child_box[slot] = if node.imask & (1 << slot) != 0 {
+        let b = if node.imask & (1 << slot) != 0 {
             let child = node.child_base_idx as usize + internal_seen;
             internal_seen += 1;
             refit_node(nodes, prims, bounds, child)
@@ -67,12 +68,8 @@ fn refit_node(nodes: &mut [CwBvhNode], prims: &[u32], bounds: &[Aabb], n: usize)
             }
             b
         };
-    }
-    let mut aabb = Aabb::empty();
-    for slot in 0..8 {
-        if occupied[slot] {
-            aabb = aabb.union(&child_box[slot]);
-        }
+        aabb = aabb.union(&b);
+        *child = Some(b);
     }
 
     // The quantisation of obvhs's bvh2_to_cwbvh, operation for operation.
@@ -86,10 +83,9 @@ fn refit_node(nodes: &mut [CwBvhNode], prims: &[u32], bounds: &[Aabb], n: usize)
     let node = &mut nodes[n];
     node.p = p.into();
     node.e = [exponent(e.x), exponent(e.y), exponent(e.z)];
-    for slot in 0..8 {
+    for (slot, child) in child_box.iter().enumerate() {
         // An empty slot's planes are zero, as the conversion leaves them.
-        let (lo, hi) = if occupied[slot] {
-            let c = &child_box[slot];
+        let (lo, hi) = if let Some(c) = child {
             let lo = ((c.min - p) * rcp_e)
                 .floor()
                 .clamp(Vec3A::ZERO, Vec3A::splat(255.0));
