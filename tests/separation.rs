@@ -45,6 +45,7 @@
 //! | the same, the defaults since 2026-12-06 (weighted L2, material search) | 0.932, 0.932, 0.925 | 4.1°, 4.0° (49 %, 32 %) | – |
 //! | the same with `Loss::L2` (a plain squared error per image) for the weighted L2: the defaults on the evening of 2026-12-06 | 0.973, 0.975, 0.976 | 1.7°, 4.1° (44 %, 30 %) | – |
 //! | the same with every rate decaying to 0.3 of its start, not a tenth (`lr_decay`): the defaults since the night of 2026-12-06 (`the_defaults_cast_the_shadows`); open floor 0.762, 0.769, 0.759 for a truth of 0.55, 0.50, 0.45 (the walk along the scale valley goes further) | 0.965, 0.967, 0.966 | 4.1°, 4.1° (40 %, 28 %) | – |
+//! | the same with ln E as five levels, 64×32 down to 4×2 (`env_levels` 5; 2026-12-06, late, not the default: the survey's `lev5` rows); open floor 0.772, 0.775, 0.762; with the paper's L1 instead of the squared error 0.975, 0.975, 0.970, suns 4.1°, 4.0° (56 %, 36 %) | 0.969, 0.966, 0.963 | 1.7°, 4.1° (45 %, 27 %) | – |
 //! | the weighted-L2 defaults with the maps fixed from iteration 267 (`--env-until 267`); open floor 0.505 for a truth of 0.505 in luminance (without: 0.72) | 0.950, 0.958, 0.962 | 1.7°, 4.1° (53 %, 34 %) | – |
 //!
 //! Also: 800 iterations of lighting alone instead of 267, 0.908-0.938; `Loss::WeightedL2`, a
