@@ -227,7 +227,7 @@ pub fn invert(opts: &Options) -> Result<Report> {
                 say(
                     opts.quiet,
                     &format!(
-                        "lighting fit: {} rows, {} sky texels, residual {:.3} -> {:.3}, the surroundings' light {:.0} %, suns {} % of each map's power, {:.1} s",
+                        "lighting fit: {} rows, {} sky texels, residual {:.3} -> {:.3}, the surroundings' light {:.0} %, suns {} % of each map's power ({} clusters taken out by the backward test), {:.1} s",
                         f.rows,
                         f.sky_texels,
                         f.residual[0],
@@ -236,6 +236,11 @@ pub fn invert(opts: &Options) -> Result<Report> {
                         f.sun_share
                             .iter()
                             .map(|v| format!("{:.0}", 100.0 * v))
+                            .collect::<Vec<_>>()
+                            .join(" / "),
+                        f.suns_pruned
+                            .iter()
+                            .map(|v| v.to_string())
                             .collect::<Vec<_>>()
                             .join(" / "),
                         f.seconds
