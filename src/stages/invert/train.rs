@@ -1131,7 +1131,7 @@ impl Inverter {
                 .flat_map(|p| p.map(|v| v.max(1e-6).ln()))
                 .collect();
         }
-        for (c, colors) in fit.surfel_colors(components, grey).iter().enumerate() {
+        for (c, colors) in fit.surfel_colors(grey).iter().enumerate() {
             inv.set_base_colors(c, colors);
         }
         (inv, Some(fit.figures))
