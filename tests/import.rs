@@ -558,6 +558,87 @@ fn bad_captures_are_refused_in_one_line() {
 }
 
 /// An interrupted import (images written, no dataset.json) is finished by running it again.
+/// `--scale-points`: two points a known distance apart, as COLMAP 3D point ids or as
+/// coordinates in the source's frame, give the metres per source unit exactly; bad ones are
+/// refused in one line (exit 2) before anything is written.
+#[test]
+fn two_points_a_known_distance_apart_set_the_scale() {
+    let c = capture(&["state0", "test"]);
+    let out = c.root().join("dataset");
+    let scale = || -> f64 {
+        let j: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("import.json")).unwrap()).unwrap();
+        j["world_from_source"]["scale"].as_f64().unwrap()
+    };
+    // Points 1 and 5 (ids from 1) are c.points[0] and c.points[4].
+    let (a, b) = (c.points[0], c.points[4]);
+    let metres = 0.5 * a.distance(b);
+    let m = metres.to_string();
+    ok(&c.import(&[
+        "--test-states",
+        "test",
+        "--scale-points",
+        "point:1",
+        "point:5",
+        &m,
+    ]));
+    assert!((scale() - 0.5).abs() < 1e-12, "{}", scale());
+    // The cameras follow: every distance between centres is half the source's.
+    let ds = Dataset::read(&out).unwrap();
+    let centres: Vec<DVec3> = ds
+        .states
+        .iter()
+        .flat_map(|s| {
+            s.frames.iter().map(|f| {
+                let o = f.camera.origin();
+                DVec3::new(o[0] as f64, o[1] as f64, o[2] as f64)
+            })
+        })
+        .collect();
+    let source: Vec<DVec3> = c
+        .images
+        .iter()
+        .map(|(_, _, q, t)| -(DMat3::from_quat(*q).transpose() * *t))
+        .collect();
+    assert_eq!(centres.len(), source.len());
+    let ratio = centres[0].distance(centres[3]) / source[0].distance(source[3]);
+    assert!((ratio - 0.5).abs() < 1e-5, "{ratio}");
+    // The same two points by their coordinates.
+    std::fs::remove_dir_all(&out).unwrap();
+    let xyz = |p: DVec3| format!("{},{},{}", p.x, p.y, p.z);
+    ok(&c.import(&[
+        "--test-states",
+        "test",
+        "--scale-points",
+        &xyz(a),
+        &xyz(b),
+        &m,
+    ]));
+    assert!((scale() - 0.5).abs() < 1e-12, "{}", scale());
+    std::fs::remove_dir_all(&out).unwrap();
+    let bad = |extra: &[&str], needles: &[&str]| {
+        refused(&c.import(&[&["--scale-points"], extra].concat()), needles);
+        assert!(!out.join("dataset.json").exists());
+    };
+    bad(
+        &["point:1", "point:999", "1"],
+        &["points3D", "--scale-points", "999"],
+    );
+    bad(&["point:1", "point:1", "1"], &["--scale-points", "same"]);
+    bad(&["point:1", "point:5", "-1"], &["--scale-points", "> 0"]);
+    bad(
+        &["point:1", "1,2", "1"],
+        &["--scale-points", "X,Y,Z", "\"1,2\""],
+    );
+    bad(
+        &["point:1", "point:5", "far"],
+        &["--scale-points", "metres", "far"],
+    );
+    // --scale and --scale-points say the same thing twice: clap refuses (exit 2).
+    let both = c.import(&["--scale", "2", "--scale-points", "point:1", "point:5", "1"]);
+    assert_eq!(both.status.code(), Some(2));
+}
+
 #[test]
 fn an_interrupted_import_can_be_run_again() {
     let c = capture(&["a", "b"]);
@@ -633,6 +714,11 @@ fn nerfstudio_transforms_import_as_the_colmap_model_does() {
             .output()
             .unwrap()
     };
+    // A nerfstudio capture has no 3D point ids to mark.
+    refused(
+        &ns(&["--scale-points", "point:1", "point:2", "1"]),
+        &["--scale-points", "point:1", "nerfstudio"],
+    );
     ok(&ns(&[&up[..], &["--scale", "2"]].concat()));
     let a = Dataset::read(&root.join("dataset")).unwrap();
     let b = Dataset::read(&root.join("ns")).unwrap();

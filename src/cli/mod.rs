@@ -521,23 +521,54 @@ pub struct ImportCommonArgs {
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub up: Option<[f64; 3]>,
     /// Metres per source unit (default 1: SfM units are arbitrary, so say it).
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true, conflicts_with = "scale_points")]
     pub scale: Option<f64>,
+    /// The scale from two points a known distance apart: A B METRES, each point X,Y,Z in the
+    /// source's frame or point:ID (a COLMAP 3D point's id, as its GUI shows).
+    #[arg(long, num_args = 3, value_names = ["A", "B", "METRES"], allow_hyphen_values = true)]
+    pub scale_points: Option<Vec<String>>,
     /// The dataset folder to write (new or empty).
     #[arg(short, long)]
     pub out: PathBuf,
 }
 
 impl ImportCommonArgs {
-    fn options(&self, quiet: bool) -> lightfuse::io::import::ImportOptions {
-        lightfuse::io::import::ImportOptions {
+    fn options(&self, quiet: bool) -> Result<lightfuse::io::import::ImportOptions> {
+        use lightfuse::io::import::{MarkedPoint, ScalePoints};
+        let scale_points = match self.scale_points.as_deref() {
+            None => None,
+            Some([a, b, m]) => {
+                let point = |s: &str| {
+                    s.parse::<MarkedPoint>()
+                        .map_err(|e| Error::Usage(format!("--scale-points: {e}")))
+                };
+                let metres = m.trim().parse::<f64>().map_err(|_| {
+                    Error::Usage(format!(
+                        "--scale-points: expected the points' distance in metres, found {m:?}"
+                    ))
+                })?;
+                Some(ScalePoints {
+                    a: point(a)?,
+                    b: point(b)?,
+                    metres,
+                })
+            }
+            Some(v) => {
+                return Err(Error::Usage(format!(
+                    "--scale-points: expected A B METRES, found {} values",
+                    v.len()
+                )))
+            }
+        };
+        Ok(lightfuse::io::import::ImportOptions {
             states: self.states.clone(),
             test_states: self.test_states.clone(),
             up: self.up,
             scale: self.scale,
+            scale_points,
             out: self.out.clone(),
             quiet,
-        }
+        })
     }
 }
 
@@ -561,7 +592,7 @@ fn import(cli: &Cli, c: &ImportCommand) -> Result<()> {
                 model: a.model.clone(),
                 images: a.images.clone(),
                 masks: a.masks.clone(),
-                options: a.common.options(cli.quiet),
+                options: a.common.options(cli.quiet)?,
             })?,
             &a.common,
         ),
@@ -569,7 +600,7 @@ fn import(cli: &Cli, c: &ImportCommand) -> Result<()> {
             import::import_nerfstudio(&import::NerfstudioImport {
                 transforms: a.transforms.clone(),
                 depth_unit_scale: a.depth_unit_scale,
-                options: a.common.options(cli.quiet),
+                options: a.common.options(cli.quiet)?,
             })?,
             &a.common,
         ),

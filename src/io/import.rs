@@ -9,7 +9,8 @@
 //!   states registered by separate SfM runs have unrelated frames, and are refused.
 //! - **Axes.** Poses become camera-to-world with OpenGL axes (−Z forward, +Y up); the world is
 //!   turned so gravity is −Y (from `--up`, or the dominant supporting plane, [`estimate_up`]),
-//!   scaled to metres by `--scale`, and moved so that plane is y = 0 under the points' middle.
+//!   scaled to metres by `--scale` (or `--scale-points`: two points a known distance apart),
+//!   and moved so that plane is y = 0 under the points' middle.
 //!   The similarity is kept in `import.json`.
 //! - **Lenses.** A distorted camera's photo is resampled into a pinhole image of the same size
 //!   ([`Lens::pinhole`]); spherical cameras are refused.
@@ -44,9 +45,54 @@ pub struct ImportOptions {
     pub up: Option<[f64; 3]>,
     /// Metres per source unit.
     pub scale: Option<f64>,
+    /// Two points a known distance apart, instead of `scale`.
+    pub scale_points: Option<ScalePoints>,
     /// The dataset folder to write (new, empty, or left by an interrupted import).
     pub out: PathBuf,
     pub quiet: bool,
+}
+
+/// Two points of the capture a known distance apart (a tape measure's two ends, a marker's
+/// corners): the scale is `metres` over their distance in source units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScalePoints {
+    pub a: MarkedPoint,
+    pub b: MarkedPoint,
+    pub metres: f64,
+}
+
+/// A point of the capture, as a user can read it off their tools.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum MarkedPoint {
+    /// Coordinates in the source's world (a point-cloud viewer's pick).
+    Source([f64; 3]),
+    /// A COLMAP 3D point by its id (`points3D`'s `POINT3D_ID`, as COLMAP's GUI shows on a
+    /// click).
+    Point(u64),
+}
+
+impl std::str::FromStr for MarkedPoint {
+    type Err = String;
+    /// `X,Y,Z` or `point:ID`.
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let expected = || format!("expected X,Y,Z or point:ID (a COLMAP 3D point), found {s:?}");
+        if let Some(id) = s.strip_prefix("point:") {
+            return id
+                .trim()
+                .parse()
+                .map(MarkedPoint::Point)
+                .map_err(|_| expected());
+        }
+        let v: Vec<f64> = s
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| expected())?;
+        match v.as_slice() {
+            [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(MarkedPoint::Source([*x, *y, *z])),
+            _ => Err(expected()),
+        }
+    }
 }
 
 /// `lightfuse import colmap`.
@@ -98,6 +144,9 @@ struct Capture {
     source: &'static str,
     shots: Vec<Shot>,
     points: Vec<DVec3>,
+    /// Per point, the source's id for it (COLMAP's `POINT3D_ID`; empty when the source has
+    /// none), for `--scale-points`.
+    point_ids: Vec<u64>,
     /// Per point, the shots (indices) that see it, when the source keeps tracks (COLMAP), with
     /// the file they came from: the one-world check and each photo's sparse depth.
     tracks: Option<(PathBuf, Vec<Vec<usize>>)>,
@@ -193,6 +242,7 @@ fn colmap_capture(a: &ColmapImport) -> Result<Capture> {
         source: "colmap",
         shots,
         points: model.points.iter().map(|p| DVec3::from(p.xyz)).collect(),
+        point_ids: model.points.iter().map(|p| p.id).collect(),
         tracks: Some((model.file("points3D"), tracks)),
         point_errors: model.points.iter().map(|p| p.error).collect(),
         depth_unit_scale: 1.0,
@@ -418,6 +468,7 @@ fn nerfstudio_capture(a: &NerfstudioImport) -> Result<Capture> {
         source: "nerfstudio",
         shots,
         points: Vec::new(),
+        point_ids: Vec::new(),
         tracks: None,
         point_errors: Vec::new(),
         depth_unit_scale: a.depth_unit_scale,
@@ -863,6 +914,53 @@ pub fn import_nerfstudio(a: &NerfstudioImport) -> Result<ImportSummary> {
     write_dataset(nerfstudio_capture(a)?, &a.options)
 }
 
+/// The scale from two marked points (`--scale-points`) and what `import.json` says of it.
+fn measured_scale(capture: &Capture, m: &ScalePoints) -> Result<(f64, String)> {
+    if !(m.metres.is_finite() && m.metres > 0.0) {
+        return Err(Error::Usage(format!(
+            "--scale-points: expected the points' distance in metres > 0, found {}",
+            m.metres
+        )));
+    }
+    let resolve = |p: &MarkedPoint| -> Result<DVec3> {
+        match *p {
+            MarkedPoint::Source(x) => Ok(DVec3::from(x)),
+            MarkedPoint::Point(id) => match &capture.tracks {
+                None => Err(Error::Usage(format!(
+                    "--scale-points: point:{id} names a COLMAP 3D point, and a {} capture has none; give the point as X,Y,Z in its frame",
+                    capture.source
+                ))),
+                Some((file, _)) => capture
+                    .point_ids
+                    .iter()
+                    .position(|&i| i == id)
+                    .map(|k| capture.points[k])
+                    .ok_or_else(|| {
+                        Error::invalid(
+                            file,
+                            "--scale-points",
+                            format!("expected a 3D point with id {id}, found none"),
+                        )
+                    }),
+            },
+        }
+    };
+    let (a, b) = (resolve(&m.a)?, resolve(&m.b)?);
+    let d = a.distance(b);
+    if d.is_nan() || d <= 1e-12 * a.length().max(b.length()).max(1.0) {
+        return Err(Error::Usage(format!(
+            "--scale-points: the two points are the same ({a:?}); expected two points apart"
+        )));
+    }
+    Ok((
+        m.metres / d,
+        format!(
+            "--scale-points: {:?} and {:?}, {d} source units apart, {} m",
+            m.a, m.b, m.metres
+        ),
+    ))
+}
+
 /// What every source shares: states, the world frame, the pixels, `dataset.json` (written last,
 /// so an interrupted import leaves no dataset) and `import.json`.
 fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
@@ -880,6 +978,11 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
             )));
         }
     }
+    let (scale, scale_source) = match (&o.scale_points, o.scale) {
+        (Some(m), _) => measured_scale(&capture, m)?,
+        (None, Some(s)) => (s, "--scale".to_string()),
+        (None, None) => (1.0, "none given: source units taken as metres".to_string()),
+    };
     for shot in &capture.shots {
         if let Some(why) = shot.lens.unsupported() {
             return Err(Error::invalid(
@@ -942,7 +1045,6 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
             ));
         }
     }
-    let scale = o.scale.unwrap_or(1.0);
     let frame = world_frame(&capture.shots, &capture.points, o.up, scale);
     // Each shot's points (index into `capture.points`), for its sparse depth.
     let mut seen_by: Vec<Vec<usize>> = vec![Vec::new(); capture.shots.len()];
@@ -1135,7 +1237,7 @@ fn write_dataset(capture: Capture, o: &ImportOptions) -> Result<ImportSummary> {
         "world_from_source": {
             "note": "x_dataset = scale * rotation * (x_source - origin)",
             "scale": frame.scale,
-            "scale_source": if o.scale.is_some() { "--scale" } else { "none given: source units taken as metres" },
+            "scale_source": scale_source,
             "rotation": [r.row(0).to_array(), r.row(1).to_array(), r.row(2).to_array()],
             "origin": frame.origin.to_array(),
             "up_source": frame.up_source,
