@@ -557,7 +557,6 @@ fn bad_captures_are_refused_in_one_line() {
     refused(&c.import(&["--scale", "-1"]), &["--scale"]);
 }
 
-/// An interrupted import (images written, no dataset.json) is finished by running it again.
 /// `--scale-points`: two points a known distance apart, as COLMAP 3D point ids or as
 /// coordinates in the source's frame, give the metres per source unit exactly; bad ones are
 /// refused in one line (exit 2) before anything is written.
@@ -639,6 +638,7 @@ fn two_points_a_known_distance_apart_set_the_scale() {
     assert_eq!(both.status.code(), Some(2));
 }
 
+/// An interrupted import (images written, no dataset.json) is finished by running it again.
 #[test]
 fn an_interrupted_import_can_be_run_again() {
     let c = capture(&["a", "b"]);

@@ -534,32 +534,11 @@ pub struct ImportCommonArgs {
 
 impl ImportCommonArgs {
     fn options(&self, quiet: bool) -> Result<lightfuse::io::import::ImportOptions> {
-        use lightfuse::io::import::{MarkedPoint, ScalePoints};
-        let scale_points = match self.scale_points.as_deref() {
-            None => None,
-            Some([a, b, m]) => {
-                let point = |s: &str| {
-                    s.parse::<MarkedPoint>()
-                        .map_err(|e| Error::Usage(format!("--scale-points: {e}")))
-                };
-                let metres = m.trim().parse::<f64>().map_err(|_| {
-                    Error::Usage(format!(
-                        "--scale-points: expected the points' distance in metres, found {m:?}"
-                    ))
-                })?;
-                Some(ScalePoints {
-                    a: point(a)?,
-                    b: point(b)?,
-                    metres,
-                })
-            }
-            Some(v) => {
-                return Err(Error::Usage(format!(
-                    "--scale-points: expected A B METRES, found {} values",
-                    v.len()
-                )))
-            }
-        };
+        let scale_points = self
+            .scale_points
+            .as_deref()
+            .map(lightfuse::io::import::ScalePoints::parse)
+            .transpose()?;
         Ok(lightfuse::io::import::ImportOptions {
             states: self.states.clone(),
             test_states: self.test_states.clone(),

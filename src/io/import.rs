@@ -61,6 +61,32 @@ pub struct ScalePoints {
     pub metres: f64,
 }
 
+impl ScalePoints {
+    /// `--scale-points A B METRES`' three values.
+    pub fn parse(values: &[String]) -> Result<ScalePoints> {
+        let [a, b, m] = values else {
+            return Err(Error::Usage(format!(
+                "--scale-points: expected A B METRES, found {} values",
+                values.len()
+            )));
+        };
+        let point = |s: &str| {
+            s.parse::<MarkedPoint>()
+                .map_err(|e| Error::Usage(format!("--scale-points: {e}")))
+        };
+        let metres = m.trim().parse::<f64>().map_err(|_| {
+            Error::Usage(format!(
+                "--scale-points: expected the points' distance in metres, found {m:?}"
+            ))
+        })?;
+        Ok(ScalePoints {
+            a: point(a)?,
+            b: point(b)?,
+            metres,
+        })
+    }
+}
+
 /// A point of the capture, as a user can read it off their tools.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MarkedPoint {
