@@ -118,8 +118,20 @@ def check_report_in_browser(eval_dir):
     h, w, _ = ball.shape
     assert w == 2 * h and (ball[0, 0] == 255).all(), ball.shape  # two discs, white outside
     assert (ball[h // 2, [h // 2, w - h // 2]] < 255).any(axis=1).all(), "a sphere is blank"
-    for m in ("base_color", "roughness", "metallic"):
+    for m in ("roughness", "metallic"):
         assert any(s.startswith("materials/") and s.endswith(f"-{m}.png") for s in srcs), srcs
+    # Every test view with an albedo pass: base colour | albedo pass | ghost map, and its ghost
+    # figures; the map's pixels are coloured where the view has a uniform surface.
+    views = report["albedo_views"]
+    assert views and all(v["image"] in srcs for v in views), (views, srcs)
+    for v in views:
+        strip = np.asarray(Image.open(eval_dir / v["image"]).convert("RGB"))
+        third = strip[:, 2 * strip.shape[1] // 3:]
+        if v["figures"] is not None:
+            f = v["figures"]
+            assert f["pixels"] > 0 and 0.0 <= f["ghost_share"] <= 1.0, v
+            assert (third.min(axis=2) > 128).any(), "no measured pixel drawn white to coloured"
+    assert "Base colour against the albedo pass" in (eval_dir / "report.html").read_text()
     broken = [i for i in page.images if not i[1]]
     assert not broken, broken
     assert page.svgs >= 1, "no loss curve drawn"

@@ -181,6 +181,40 @@ pub fn srgb_image(rgb: &[[f32; 3]], w: u32, h: u32) -> image::RgbImage {
     out
 }
 
+/// A ghost map: per pixel, how far the recovered base colour strays from the rest of its
+/// uniform surface ([`crate::eval::lighting::albedo_deviation`]'s signed deviation d). Blue
+/// where darker (a painted shadow), red where brighter, white where equal; within
+/// [`GHOST_TOLERANCE`](crate::eval::lighting::GHOST_TOLERANCE) the colour rises to half, past
+/// it (a ghost) it jumps to 60 % and saturates at twice the tolerance, so the ghosts the
+/// figure counts stand out. Pixels measured on no uniform surface (`Some(None)`: a texture) are
+/// mid grey, pixels not measured (`None`: sky, no albedo) black.
+pub fn ghost_map(deviation: &[Option<Option<f64>>], w: u32, h: u32) -> image::RgbImage {
+    let tol = crate::eval::lighting::GHOST_TOLERANCE;
+    let mut out = image::RgbImage::new(w, h);
+    for (i, d) in deviation.iter().enumerate() {
+        let px = match d {
+            None => [0; 3],
+            Some(None) => [128; 3],
+            Some(Some(d)) => {
+                let a = d.abs();
+                let t = if a <= tol {
+                    0.5 * a / tol
+                } else {
+                    0.6 + 0.4 * ((a - tol) / tol).min(1.0)
+                };
+                let hue: [f64; 3] = if *d < 0.0 {
+                    [30.0, 80.0, 255.0]
+                } else {
+                    [255.0, 50.0, 30.0]
+                };
+                hue.map(|c| (255.0 + t * (c - 255.0)).round() as u8)
+            }
+        };
+        out.put_pixel(i as u32 % w, i as u32 / w, image::Rgb(px));
+    }
+    out
+}
+
 /// A grey image of values in [0, 1] shown as they are (roughness, metallic).
 pub fn grey_image(values: &[f32], w: u32, h: u32) -> image::RgbImage {
     let mut out = image::RgbImage::new(w, h);
@@ -347,7 +381,70 @@ max-width:100%}figcaption{font-size:12px;color:#555;max-width:640px}.cols{displa
 grid-template-columns:repeat(5,1fr);font-size:12px;color:#555;text-align:center}\
 .view{display:inline-block;width:960px;max-width:100%;margin:0 16px 16px 0;\
 vertical-align:top}.view img{width:100%;image-rendering:pixelated;display:block}.env img{width:384px}\
-.mat img{width:256px}code{font-size:90%}";
+.mat img{width:256px}.ghost{display:inline-block;width:576px;max-width:100%;\
+margin:0 16px 16px 0;vertical-align:top}.ghost .cols{grid-template-columns:repeat(3,1fr)}\
+.ghost img{width:100%;image-rendering:pixelated;display:block}code{font-size:90%}";
+
+/// The section of every test view's base colour beside the albedo pass and its ghost map,
+/// the worst views named first.
+fn albedo_views(s: &mut String, views: &[crate::eval::tables::ViewUniformity]) {
+    let tol = 100.0 * crate::eval::lighting::GHOST_TOLERANCE;
+    s.push_str(
+        "<h2>Base colour against the albedo pass</h2>\n<p>Every test view with an albedo pass: \
+         the recovered base colour at each pixel centre's first hit, Cycles' albedo pass, and \
+         the ghost map: on each surface of uniform true albedo, how far the base colour (over \
+         the truth) strays from that surface's median over all views. Blue is darker than the \
+         rest of the surface (a training state's shadow painted in), red brighter, white equal; \
+         ",
+    );
+    let _ = write!(
+        s,
+        "the colour jumps where a pixel passes {tol:.0} % (a ghost, as counted above). Grey: a \
+         textured surface (not measured), black: nothing measured.",
+    );
+    let mut worst: Vec<(&str, f64)> = views
+        .iter()
+        .filter_map(|v| {
+            v.figures
+                .as_ref()
+                .map(|f| (v.frame.as_str(), f.ghost_share))
+        })
+        .collect();
+    worst.sort_by(|a, b| b.1.total_cmp(&a.1));
+    if !worst.is_empty() {
+        let named: Vec<String> = worst
+            .iter()
+            .take(3)
+            .map(|(f, g)| format!("{} ({:.1} %)", esc(f), 100.0 * g))
+            .collect();
+        let _ = write!(s, " Most ghosts: {}.", named.join(", "));
+    }
+    s.push_str("</p>\n");
+    for v in views {
+        let Some(img) = &v.image else { continue };
+        let caption = match &v.figures {
+            Some(f) => format!(
+                "{}: ghosts {:.1} % of {} pixels on {} uniform surfaces, mean deviation {:.1} %",
+                v.frame,
+                100.0 * f.ghost_share,
+                f.pixels,
+                f.surfaces,
+                100.0 * f.spread
+            ),
+            None => format!("{}: no pixel on a uniform surface", v.frame),
+        };
+        let _ = writeln!(
+            s,
+            "<div class=\"ghost\"><div class=\"cols\"><span>base colour</span><span>albedo \
+             pass</span><span>ghost map</span></div><img src=\"{}\" alt=\"{}\" \
+             loading=\"eager\"><figcaption>{}: {}</figcaption></div>",
+            esc(img),
+            esc(&v.frame),
+            esc(&v.state),
+            esc(&caption)
+        );
+    }
+}
 
 /// The page.
 pub fn page(r: &Report, a: &Assets) -> String {
@@ -503,12 +600,15 @@ pub fn page(r: &Report, a: &Assets) -> String {
             s.push_str("</div>\n");
         }
     }
+    if r.albedo_views.iter().any(|v| v.image.is_some()) {
+        albedo_views(&mut s, &r.albedo_views);
+    }
     if !a.materials.is_empty() {
         s.push_str(
-            "<h2>Recovered materials</h2>\n<p>Base colour (sRGB), roughness and metallic \
-             (grey, 0 black to 1 white) of the relightable scene in the test arrangement, at \
-             each pixel centre's first hit; the dataset's albedo pass beside the base colour \
-             where it has one.</p>\n",
+            "<h2>Recovered materials</h2>\n<p>Roughness and metallic (grey, 0 black to 1 \
+             white) of the relightable scene in the test arrangement, at each pixel centre's \
+             first hit, for one view per state; its base colour (sRGB) too when the dataset has \
+             no albedo pass (with one, every view's is above).</p>\n",
         );
         for m in &a.materials {
             let _ = write!(
@@ -542,6 +642,27 @@ pub fn page(r: &Report, a: &Assets) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ghost_maps_colour_by_sign_and_jump_at_the_tolerance() {
+        let tol = crate::eval::lighting::GHOST_TOLERANCE;
+        let d = [
+            None,
+            Some(None),
+            Some(Some(0.0)),
+            Some(Some(-tol)),
+            Some(Some(-tol - 1e-6)),
+            Some(Some(3.0 * tol)),
+        ];
+        let img = ghost_map(&d, 6, 1);
+        let px = |x| img.get_pixel(x, 0).0;
+        assert_eq!((px(0), px(1), px(2)), ([0; 3], [128; 3], [255; 3]));
+        // Darker than the surface: blue, half way at the tolerance, 60 % just past it.
+        assert_eq!(px(3), [143, 168, 255]);
+        assert_eq!(px(4), [120, 150, 255]);
+        // Brighter by twice the tolerance or more: the full red.
+        assert_eq!(px(5), [255, 50, 30]);
+    }
 
     #[test]
     fn text_is_escaped_and_plots_are_well_formed() {

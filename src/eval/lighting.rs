@@ -360,48 +360,71 @@ pub fn albedo_uniformity_over(
     pairs: &[([f32; 3], [f32; 3])],
     keep: impl Fn(usize) -> bool,
 ) -> Option<UniformityFigures> {
+    uniformity_of(&albedo_deviation(pairs), keep)
+}
+
+/// [`albedo_uniformity_over`] from the pairs' [`albedo_deviation`], computed once: the figures
+/// of several parts of one set of pairs (the report's per-view figures).
+pub fn uniformity_of(
+    deviations: &[Option<(usize, f64)>],
+    keep: impl Fn(usize) -> bool,
+) -> Option<UniformityFigures> {
+    let mut surfaces = std::collections::BTreeSet::new();
+    let (mut pixels, mut ghosts, mut deviation) = (0, 0, 0.0f64);
+    for (i, dev) in deviations.iter().enumerate() {
+        let Some((surface, d)) = *dev else { continue };
+        if !keep(i) {
+            continue;
+        }
+        surfaces.insert(surface);
+        pixels += 1;
+        deviation += d.abs();
+        if d.abs() > GHOST_TOLERANCE {
+            ghosts += 1;
+        }
+    }
+    (pixels > 0).then(|| UniformityFigures {
+        surfaces: surfaces.len(),
+        pixels,
+        ghost_share: ghosts as f64 / pixels as f64,
+        spread: deviation / pixels as f64,
+    })
+}
+
+/// Each pair's place on the uniform surfaces of [`albedo_uniformity`]: the surface (its index
+/// among the qualifying surfaces, in the order of their quantised true albedo) and the signed
+/// deviation r / median_surface(r) − 1 of its luminance ratio r = p / t (below zero: darker
+/// than the rest of its surface, as a painted shadow is); None for a pair on no qualifying
+/// surface or with no ratio. The one definition behind the ghost figures and the report's
+/// per-view ghost maps.
+pub fn albedo_deviation(pairs: &[([f32; 3], [f32; 3])]) -> Vec<Option<(usize, f64)>> {
     let luma = |c: [f32; 3]| (0..3).map(|k| LUMINANCE[k] * c[k] as f64).sum::<f64>();
-    let mut groups: std::collections::BTreeMap<[u32; 3], Vec<(f64, bool)>> = Default::default();
+    let mut groups: std::collections::BTreeMap<[u32; 3], Vec<(usize, f64)>> = Default::default();
     for (i, (p, t)) in pairs.iter().enumerate() {
         let lt = luma(*t);
         if lt < 1e-3 {
             continue;
         }
         let key = t.map(|v| (v.clamp(0.0, 1.0) * 4096.0).round() as u32);
-        groups
-            .entry(key)
-            .or_default()
-            .push((luma(*p) / lt, keep(i)));
+        groups.entry(key).or_default().push((i, luma(*p) / lt));
     }
-    let (mut surfaces, mut pixels, mut ghosts, mut deviation) = (0, 0, 0, 0.0f64);
+    let mut out = vec![None; pairs.len()];
+    let mut surface = 0;
     for members in groups.values() {
-        if members.len() < UNIFORM_MIN_PIXELS || !members.iter().any(|m| m.1) {
+        if members.len() < UNIFORM_MIN_PIXELS {
             continue;
         }
-        let mut ratios: Vec<f64> = members.iter().map(|m| m.0).collect();
+        let mut ratios: Vec<f64> = members.iter().map(|m| m.1).collect();
         let m = crate::stats::median(&mut ratios).expect("a surface has pixels");
         if m <= 0.0 {
             continue;
         }
-        surfaces += 1;
-        for &(r, kept) in members {
-            if !kept {
-                continue;
-            }
-            let d = (r / m - 1.0).abs();
-            pixels += 1;
-            deviation += d;
-            if d > GHOST_TOLERANCE {
-                ghosts += 1;
-            }
+        for &(i, r) in members {
+            out[i] = Some((surface, r / m - 1.0));
         }
+        surface += 1;
     }
-    (pixels > 0).then(|| UniformityFigures {
-        surfaces,
-        pixels,
-        ghost_share: ghosts as f64 / pixels as f64,
-        spread: deviation / pixels as f64,
-    })
+    out
 }
 
 /// Relative error per channel, Σ|p − t| / Σ t, averaged over the channels whose Σ t > 0.
@@ -784,5 +807,22 @@ mod tests {
             .collect();
         assert_eq!(albedo_uniformity(&scaled).unwrap().ghost_share, 0.0);
         assert!(albedo_uniformity(&pairs[1200..]).is_none());
+
+        // Per pair: the blob below its floor's median, the rest of the floor and the wall on
+        // it, the texture on no surface; surfaces numbered in their true albedo's order.
+        let dev = albedo_deviation(&pairs);
+        let blob = 0.5f64 / 0.9 - 1.0;
+        let (floor, _) = dev[0].expect("the blob is on the floor");
+        assert!((dev[0].unwrap().1 - blob).abs() < 1e-6, "{:?}", dev[0]);
+        assert_eq!(
+            dev[500].map(|d| (d.0, d.1.abs() < 1e-6)),
+            Some((floor, true))
+        );
+        let (wall, d) = dev[1100].expect("the wall");
+        assert!(wall != floor && d.abs() < 1e-6);
+        assert!(dev[1200..].iter().all(Option::is_none));
+        // Counted over one part (the blob's half): its surfaces and pixels only.
+        let half = albedo_uniformity_over(&pairs, |i| i < 60).unwrap();
+        assert_eq!((half.surfaces, half.pixels, half.ghost_share), (1, 60, 1.0));
     }
 }

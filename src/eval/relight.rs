@@ -45,7 +45,7 @@ use crate::eval::lighting::{
 use crate::eval::report::comparison_strip;
 use crate::eval::tables::{
     markdown, mean_rows, Metrics, Report, RowFigures, RunFigures, Selection, StateEnvironment,
-    ViewFigures, DENOISER, FORMAT,
+    ViewFigures, ViewUniformity, DENOISER, FORMAT,
 };
 use crate::io::dataset::{Dataset, Frame};
 use crate::io::work::{read_stage_scene, WorkDir};
@@ -324,14 +324,21 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
     let input = Inputs::load(opts, &d)?;
     let filter = PixelFilter::new(crate::shade::estimator::DEFAULT_FILTER_WIDTH);
     let trace = TraceScene::new(&input.relit);
-    let (albedo, shadow_ghosts) = albedo_ratio(&input, &trace, &filter, opts.seed)?;
+    let out_dir = opts.work.eval_dir();
+    let measures = albedo_ratio(
+        &input,
+        &trace,
+        &filter,
+        opts.seed,
+        opts.images.then_some(out_dir.as_path()),
+    )?;
+    let albedo = &measures.figures;
     let ratio = albedo
         .ratio
         .map(|r| if r.is_finite() { r as f32 } else { 1.0 });
     let scales = [[1.0; 3], ratio];
 
     let (runs, d) = (&input.runs, input.d);
-    let out_dir = opts.work.eval_dir();
     let total: u64 = runs.iter().map(|r| r.frames.len() as u64).sum();
     let bar = crate::progress::Progress::new(opts.quiet, total, "evaluate");
     let mut rays = 0u64;
@@ -347,7 +354,10 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
             mean: BTreeMap::new(),
         })
         .collect();
-    let mut pictures = Pictures::default();
+    let mut pictures = Pictures {
+        strips: measures.strips,
+        ..Default::default()
+    };
     for (si, &k) in input.test_states.iter().enumerate() {
         let state = TestState {
             placed: trace.place_state(&input.relit_states[si]),
@@ -383,7 +393,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
                         aovs,
                         &out_dir,
                         &mut pictures.strips,
-                    )?);
+                    ));
                 }
                 let view = ViewToRender {
                     run: &runs[r],
@@ -446,7 +456,8 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         albedo_ratio: albedo.ratio,
         albedo_pixels: albedo.pixels,
         albedo_uniformity: albedo.uniformity.clone(),
-        shadow_ghosts,
+        shadow_ghosts: measures.ghosts,
+        albedo_views: measures.per_view,
         environments,
         relighting: BTreeMap::new(),
         synthesis: BTreeMap::new(),
@@ -467,15 +478,18 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
 /// ghost figures taken apart by where the training states' shadows fell
 /// ([`crate::eval::shadows`]), when the dataset has the training states' environments and the
 /// views' masks.
+///
+/// Also each view's ghost figures and, with `out_dir` (images asked for), its strip for the
+/// report: the recovered base colour | the albedo pass | the ghost map ([`html::ghost_map`]),
+/// each pixel against its surface's median over every view.
 fn albedo_ratio(
     input: &Inputs,
     trace: &TraceScene,
     filter: &PixelFilter,
     seed: u32,
-) -> Result<(
-    crate::eval::lighting::AlbedoFigures,
-    Option<crate::eval::shadows::ShadowGhosts>,
-)> {
+    out_dir: Option<&Path>,
+) -> Result<AlbedoMeasures> {
+    use crate::eval::lighting::{albedo_deviation, uniformity_of};
     use crate::eval::shadows::{lit_share, shadow_ghosts, Shares};
     use rayon::prelude::*;
     // Each training state as stage 3 saw it (the relightable scene placed by its poses) and
@@ -498,6 +512,7 @@ fn albedo_ratio(
         ));
     }
     let mut pairs = Vec::new();
+    let mut views = Vec::new();
     let mut shares: Vec<Option<Shares>> = Vec::new();
     let mut masks_everywhere = true;
     for (si, &k) in input.test_states.iter().enumerate() {
@@ -542,16 +557,88 @@ fn albedo_ratio(
                     )
                 })
                 .collect();
+            let first = pairs.len();
             for (&i, s) in kept.iter().zip(view_shares) {
                 pairs.push((aovs.albedo[i], truth[i]));
                 shares.push(s);
             }
+            let (w, h) = (f.camera.w, f.camera.h);
+            let strip = out_dir.map(|_| {
+                let mut strip = image::RgbImage::new(3 * w, h);
+                image::imageops::replace(&mut strip, &html::srgb_image(&aovs.albedo, w, h), 0, 0);
+                image::imageops::replace(&mut strip, &html::srgb_image(&truth, w, h), w as i64, 0);
+                strip
+            });
+            views.push(AlbedoView {
+                state: input.d.states[k].name.clone(),
+                frame: f.file_path.clone(),
+                first,
+                pixels: kept,
+                size: (w, h),
+                strip,
+            });
         }
     }
     let names: Vec<String> = lights.iter().map(|l| l.0.clone()).collect();
     let ghosts = (!lights.is_empty() && masks_everywhere && !pairs.is_empty())
         .then(|| shadow_ghosts(&pairs, &shares, &names));
-    Ok((compare_albedo(&pairs), ghosts))
+    let deviation = albedo_deviation(&pairs);
+    let mut strips = Vec::new();
+    let per_view = views
+        .into_iter()
+        .map(|v| {
+            let range = v.first..v.first + v.pixels.len();
+            let image = v.strip.zip(out_dir).map(|(mut strip, dir)| {
+                let (w, h) = v.size;
+                let mut map = vec![None; (w * h) as usize];
+                for (&i, d) in v.pixels.iter().zip(&deviation[range.clone()]) {
+                    map[i] = Some(d.map(|d| d.1));
+                }
+                image::imageops::replace(&mut strip, &html::ghost_map(&map, w, h), 2 * w as i64, 0);
+                let stem = Path::new(&v.frame)
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                let rel = format!("materials/{}/{stem}-ghosts.png", v.state);
+                strips.push((dir.join(&rel), strip));
+                rel
+            });
+            ViewUniformity {
+                figures: uniformity_of(&deviation, |i| range.contains(&i)),
+                state: v.state,
+                frame: v.frame,
+                image,
+            }
+        })
+        .collect();
+    Ok(AlbedoMeasures {
+        figures: compare_albedo(&pairs),
+        ghosts,
+        per_view,
+        strips,
+    })
+}
+
+/// What [`albedo_ratio`] measures: the base colour against the albedo pass over every test
+/// view, the ghosts taken apart by where the training states' shadows fell, each view's ghost
+/// figures, and the views' strips (path, image) when images were asked for.
+struct AlbedoMeasures {
+    figures: crate::eval::lighting::AlbedoFigures,
+    ghosts: Option<crate::eval::shadows::ShadowGhosts>,
+    per_view: Vec<ViewUniformity>,
+    strips: Vec<(PathBuf, image::RgbImage)>,
+}
+
+/// One test view's pixels among [`albedo_ratio`]'s pairs (from `first`, one per kept pixel),
+/// with its strip's first two tiles drawn (the third, the ghost map, needs every view's
+/// pairs for the surfaces' medians).
+struct AlbedoView {
+    state: String,
+    frame: String,
+    first: usize,
+    pixels: Vec<usize>,
+    size: (u32, u32),
+    strip: Option<image::RgbImage>,
 }
 
 /// A test state's arrangement, ready to render: the relightable scene placed for tracing (with
@@ -744,8 +831,9 @@ fn write(opts: &Options, report: &Report, mut pictures: Pictures) -> Result<()> 
     files.commit()
 }
 
-/// The report's material images of one view: base colour (and the dataset's albedo pass),
-/// roughness, metallic from the view's pixel-centre records.
+/// The report's material images of one view: roughness and metallic from the view's records,
+/// and its base colour when the dataset has no albedo pass (with one, every view's base colour
+/// is beside it, [`albedo_ratio`]'s strips).
 fn material_view(
     d: &Dataset,
     k: usize,
@@ -753,7 +841,7 @@ fn material_view(
     aovs: &Aovs,
     out_dir: &Path,
     pngs: &mut Vec<(PathBuf, image::RgbImage)>,
-) -> Result<html::MaterialView> {
+) -> html::MaterialView {
     let (w, h) = (frame.camera.w, frame.camera.h);
     let state = &d.states[k].name;
     let stem = Path::new(&frame.file_path)
@@ -769,17 +857,11 @@ fn material_view(
             caption: caption.into(),
         });
     };
-    add(
-        "base_color",
-        "base colour (recovered)",
-        html::srgb_image(&aovs.albedo, w, h),
-    );
-    if let Some(rel) = &frame.albedo_file_path {
-        let t = d.frame_rgb(rel, &frame.camera)?;
+    if frame.albedo_file_path.is_none() {
         add(
-            "base_color_truth",
-            "albedo (Cycles' pass)",
-            html::srgb_image(&t, w, h),
+            "base_color",
+            "base colour (recovered)",
+            html::srgb_image(&aovs.albedo, w, h),
         );
     }
     add(
@@ -792,11 +874,11 @@ fn material_view(
         "metallic",
         html::grey_image(&aovs.metallic, w, h),
     );
-    Ok(html::MaterialView {
+    html::MaterialView {
         state: state.clone(),
         frame: frame.file_path.clone(),
         figures,
-    })
+    }
 }
 
 /// Each training state's recovered environment with the dataset's (None when the dataset has

@@ -171,6 +171,18 @@ pub struct RunFigures {
     pub mean: BTreeMap<String, RowFigures>,
 }
 
+/// One test view's base colour against the dataset's albedo pass ([`Report::albedo_views`]).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ViewUniformity {
+    pub state: String,
+    pub frame: String,
+    /// None when none of the view's pixels lies on a uniform surface.
+    pub figures: Option<crate::eval::lighting::UniformityFigures>,
+    /// Its strip (recovered base colour | albedo pass | ghost map), relative to `<work>/eval`,
+    /// when written.
+    pub image: Option<String>,
+}
+
 /// A training state's recovered environment against the dataset's
 /// ([`crate::eval::lighting::compare_environments`]).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -210,6 +222,11 @@ pub struct Report {
     /// the training environments or the test views' masks.
     #[serde(default)]
     pub shadow_ghosts: Option<crate::eval::shadows::ShadowGhosts>,
+    /// The ghost figures of each test view with an albedo pass (each pixel measured against
+    /// its surface's median over every view, as in `albedo_uniformity`): where the ghosts
+    /// are. Empty in reports written before the field.
+    #[serde(default)]
+    pub albedo_views: Vec<ViewUniformity>,
     /// Each training state's recovered environment against the one that lit its captures
     /// (states whose dataset has the file; empty in reports written before the field).
     #[serde(default)]
