@@ -122,6 +122,7 @@ def check_report_in_browser(eval_dir):
         assert any(s.startswith("materials/") and s.endswith(f"-{m}.png") for s in srcs), srcs
     # Every test view with an albedo pass: base colour | albedo pass | ghost map, and its ghost
     # figures; the map's pixels are coloured where the view has a uniform surface.
+    assert "albedo_away_from_seams" in report, report.keys()
     views = report["albedo_views"]
     assert views and all(v["image"] in srcs for v in views), (views, srcs)
     for v in views:

@@ -481,6 +481,18 @@ pub fn page(r: &Report, a: &Assets) -> String {
             100.0 * u.spread
         )),
     );
+    if let Some(u) = &r.albedo_away_from_seams {
+        let _ = writeln!(
+            s,
+            "<p>Away from the seams between true albedos ({} pixels at least {} from another, \
+             so a texture's blurred edges do not count): {:.1} % ghosts, mean deviation \
+             {:.1} %.</p>",
+            u.pixels,
+            crate::eval::lighting::SEAM_PIXELS,
+            100.0 * u.ghost_share,
+            100.0 * u.spread
+        );
+    }
     if let Some(g) = &r.shadow_ghosts {
         let _ = writeln!(
             s,

@@ -391,6 +391,42 @@ pub fn uniformity_of(
     })
 }
 
+/// A true albedo quantised to 1/4096 per channel: pixels with one key are one material.
+pub fn albedo_key(t: [f32; 3]) -> [u32; 3] {
+    t.map(|v| (v.clamp(0.0, 1.0) * 4096.0).round() as u32)
+}
+
+/// How far (pixels, in the max norm) a pixel must be from every pixel of another true albedo
+/// to count as away from a seam ([`away_from_seams`]).
+pub const SEAM_PIXELS: usize = 2;
+
+/// Per pixel of an albedo pass (`w` wide, row-major): whether every pixel within
+/// [`SEAM_PIXELS`] (the image's border aside) has its [`albedo_key`]. The ghost figure counted
+/// over such pixels only tells a base colour painted by the light (a shadow is wider than
+/// four pixels) from one blurred across a texture's edges, where a surfel straddling a
+/// checker's seam puts one tile's colour on the other's pixels (issue 44: on the demo most
+/// ghosts are there).
+pub fn away_from_seams(truth: &[[f32; 3]], w: usize) -> Vec<bool> {
+    let h = truth.len() / w.max(1);
+    let keys: Vec<[u32; 3]> = truth.iter().map(|&t| albedo_key(t)).collect();
+    let r = SEAM_PIXELS as i64;
+    (0..truth.len())
+        .map(|i| {
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            (-r..=r).all(|dy| {
+                (-r..=r).all(|dx| {
+                    let (u, v) = (x + dx, y + dy);
+                    u < 0
+                        || v < 0
+                        || u >= w as i64
+                        || v >= h as i64
+                        || keys[v as usize * w + u as usize] == keys[i]
+                })
+            })
+        })
+        .collect()
+}
+
 /// Each pair's place on the uniform surfaces of [`albedo_uniformity`]: the surface (its index
 /// among the qualifying surfaces, in the order of their quantised true albedo) and the signed
 /// deviation r / median_surface(r) − 1 of its luminance ratio r = p / t (below zero: darker
@@ -405,8 +441,10 @@ pub fn albedo_deviation(pairs: &[([f32; 3], [f32; 3])]) -> Vec<Option<(usize, f6
         if lt < 1e-3 {
             continue;
         }
-        let key = t.map(|v| (v.clamp(0.0, 1.0) * 4096.0).round() as u32);
-        groups.entry(key).or_default().push((i, luma(*p) / lt));
+        groups
+            .entry(albedo_key(*t))
+            .or_default()
+            .push((i, luma(*p) / lt));
     }
     let mut out = vec![None; pairs.len()];
     let mut surface = 0;
@@ -821,6 +859,14 @@ mod tests {
         let (wall, d) = dev[1100].expect("the wall");
         assert!(wall != floor && d.abs() < 1e-6);
         assert!(dev[1200..].iter().all(Option::is_none));
+        // Seams: in a 12×1 image of two albedos (6 pixels each), only the pixels more than
+        // SEAM_PIXELS (2) from the other are away from the seam.
+        let strip: Vec<[f32; 3]> = (0..12)
+            .map(|i| [if i % 12 < 6 { 0.2 } else { 0.8 }; 3])
+            .collect();
+        let away = away_from_seams(&strip, 12);
+        let want: Vec<bool> = (0..12).map(|i| !(4..=7).contains(&i)).collect();
+        assert_eq!(away, want);
         // Counted over one part (the blob's half): its surfaces and pixels only.
         let half = albedo_uniformity_over(&pairs, |i| i < 60).unwrap();
         assert_eq!((half.surfaces, half.pixels, half.ghost_share), (1, 60, 1.0));

@@ -456,6 +456,7 @@ pub fn evaluate(opts: &Options) -> Result<Report> {
         albedo_ratio: albedo.ratio,
         albedo_pixels: albedo.pixels,
         albedo_uniformity: albedo.uniformity.clone(),
+        albedo_away_from_seams: measures.away_from_seams,
         shadow_ghosts: measures.ghosts,
         albedo_views: measures.per_view,
         environments,
@@ -489,7 +490,7 @@ fn albedo_ratio(
     seed: u32,
     out_dir: Option<&Path>,
 ) -> Result<AlbedoMeasures> {
-    use crate::eval::lighting::{albedo_deviation, uniformity_of};
+    use crate::eval::lighting::{albedo_deviation, away_from_seams, uniformity_of};
     use crate::eval::shadows::{lit_share, shadow_ghosts, Shares};
     use rayon::prelude::*;
     // Each training state as stage 3 saw it (the relightable scene placed by its poses) and
@@ -513,6 +514,7 @@ fn albedo_ratio(
     }
     let mut pairs = Vec::new();
     let mut views = Vec::new();
+    let mut away_from_seam = Vec::new();
     let mut shares: Vec<Option<Shares>> = Vec::new();
     let mut masks_everywhere = true;
     for (si, &k) in input.test_states.iter().enumerate() {
@@ -558,9 +560,11 @@ fn albedo_ratio(
                 })
                 .collect();
             let first = pairs.len();
+            let away = away_from_seams(&truth, w);
             for (&i, s) in kept.iter().zip(view_shares) {
                 pairs.push((aovs.albedo[i], truth[i]));
                 shares.push(s);
+                away_from_seam.push(away[i]);
             }
             let (w, h) = (f.camera.w, f.camera.h);
             let strip = out_dir.map(|_| {
@@ -612,6 +616,7 @@ fn albedo_ratio(
         })
         .collect();
     Ok(AlbedoMeasures {
+        away_from_seams: uniformity_of(&deviation, |i| away_from_seam[i]),
         figures: compare_albedo(&pairs),
         ghosts,
         per_view,
@@ -625,6 +630,7 @@ fn albedo_ratio(
 struct AlbedoMeasures {
     figures: crate::eval::lighting::AlbedoFigures,
     ghosts: Option<crate::eval::shadows::ShadowGhosts>,
+    away_from_seams: Option<crate::eval::lighting::UniformityFigures>,
     per_view: Vec<ViewUniformity>,
     strips: Vec<(PathBuf, image::RgbImage)>,
 }

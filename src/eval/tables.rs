@@ -216,6 +216,11 @@ pub struct Report {
     /// field, or when no surface qualifies.
     #[serde(default)]
     pub albedo_uniformity: Option<crate::eval::lighting::UniformityFigures>,
+    /// The same figures over the pixels away from the seams between true albedos
+    /// ([`crate::eval::lighting::away_from_seams`]): ghosts the light painted rather than a
+    /// texture's edges blurred. Absent in reports written before the field.
+    #[serde(default)]
+    pub albedo_away_from_seams: Option<crate::eval::lighting::UniformityFigures>,
     /// The ghost figures taken apart by where the training states' shadows fell
     /// ([`crate::eval::shadows`]): over pixels lit in every training state, and per state over
     /// its moved shadows. Absent in reports written before the field, and for datasets without
@@ -300,6 +305,15 @@ pub fn markdown(r: &Report) -> String {
             "Base colour over the {} surfaces of uniform true albedo ({} pixels): {:.1} % of pixels more than 15 % off their surface's median (ghost shadows), mean deviation {:.1} %.\n\n",
             u.surfaces,
             u.pixels,
+            100.0 * u.ghost_share,
+            100.0 * u.spread
+        ));
+    }
+    if let Some(u) = &r.albedo_away_from_seams {
+        s.push_str(&format!(
+            "Away from the seams between true albedos ({} pixels at least {} from another): {:.1} % ghosts, mean deviation {:.1} %.\n\n",
+            u.pixels,
+            crate::eval::lighting::SEAM_PIXELS,
             100.0 * u.ghost_share,
             100.0 * u.spread
         ));
