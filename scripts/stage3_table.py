@@ -74,6 +74,7 @@ def row(scene, variant, d):
         t2=t2 and t2["psnr_srgb_db"],
         ghost=u and u["ghost_share"], spread=u and u["spread"],
         ghost_lit=(sg.get("lit") or {}).get("ghost_share"), ghost_shadows=in_shadows,
+        ghost_seams=(e.get("albedo_away_from_seams") or {}).get("ghost_share"),
         alb_raw=alb.get("raw_error"), alb_scaled=alb.get("scaled_error"),
         irr=mean(v["irradiance_error"] for v in envs), irr_u=mean(v["irradiance_error_uniform"] for v in envs),
         up=mean(v.get("log_rmse_upper") for v in envs), up_u=mean(v.get("log_rmse_upper_uniform") for v in envs),
@@ -81,6 +82,11 @@ def row(scene, variant, d):
         train=[s["training"]["psnr_srgb_db"] for s in inv["states"]],
         wall=wall_seconds(os.path.join(d, "time.txt")),
     )
+
+
+def seams(r):
+    """The ghost share away from the seams between true albedos, in rows evaluated since it exists."""
+    return "" if r["ghost_seams"] is None else f"; off seams {100 * r['ghost_seams']:.1f} %"
 
 
 def main(res):
@@ -116,7 +122,8 @@ def main(res):
           "views' base colour more than 15 % off its surface's median over surfaces of uniform true albedo, "
           "then the same share among background pixels lit in every training state and among those in a "
           "training state's shadow and lit in another (`shadow_ghosts`: painted shadows show as the second "
-          "far above the first); "
+          "far above the first; off seams = the share over pixels at least 2 px from another true albedo, so a "
+          "texture's blurred edges do not count, in rows evaluated since 2026-12-07's third sitting); "
           "base colour = error against the albedo pass on the training views, raw and after the rescale; "
           "irradiance and log (upper hemisphere) = the recovered environments against the truth, mean over the "
           "training states, a uniform map's in brackets; mirrors = recovered metallic / roughness of each chrome "
@@ -141,7 +148,7 @@ def main(res):
         train = " / ".join(f"{x:.1f}" for x in r["train"])
         print(f"| {name} | {r['variant']}{mark} | {fmt(r['t1'], '.2f')} / {fmt(r['ssim'], '.3f')} "
               f"| {fmt(r['t1r'], '.2f')} | {fmt(r['t2'], '.2f')} | {fmt(pct(r['ghost']), '.1f', ' %')} "
-              f"({fmt(pct(r['ghost_lit']), '.0f')} / {fmt(pct(r['ghost_shadows']), '.0f')} %) "
+              f"({fmt(pct(r['ghost_lit']), '.0f')} / {fmt(pct(r['ghost_shadows']), '.0f')} %{seams(r)}) "
               f"| {fmt(r['alb_raw'] and 100 * r['alb_raw'], '.1f')} / {fmt(r['alb_scaled'] and 100 * r['alb_scaled'], '.1f')} % "
               f"| {fmt(r['irr'] and 100 * r['irr'], '.1f')} % ({fmt(r['irr_u'] and 100 * r['irr_u'], '.0f')} %) "
               f"| {fmt(r['up'], '.2f')} ({fmt(r['up_u'], '.2f')}) | {mirrors} | {train} | {r['wall']:.0f} s |")
