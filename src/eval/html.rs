@@ -437,10 +437,9 @@ fn albedo_views(s: &mut String, views: &[crate::eval::tables::ViewUniformity]) {
             s,
             "<div class=\"ghost\"><div class=\"cols\"><span>base colour</span><span>albedo \
              pass</span><span>ghost map</span></div><img src=\"{}\" alt=\"{}\" \
-             loading=\"eager\"><figcaption>{}: {}</figcaption></div>",
+             loading=\"eager\"><figcaption>{}</figcaption></div>",
             esc(img),
             esc(&v.frame),
-            esc(&v.state),
             esc(&caption)
         );
     }
