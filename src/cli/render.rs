@@ -162,10 +162,7 @@ fn select_state(scene: &Scene, a: &RenderArgs) -> Result<State> {
         None => Ok(base),
         Some(path) => {
             let layout = lightfuse::io::layout::read_layout(path)?;
-            let name = path
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "layout".into());
+            let name = lightfuse::io::file_stem(path).unwrap_or_else(|| "layout".into());
             let mut state = scene.state_from_layout(&name, &layout, path)?;
             state.environment = base.environment;
             Ok(state)

@@ -48,6 +48,7 @@ use crate::eval::tables::{
     ViewFigures, ViewUniformity, DENOISER, FORMAT,
 };
 use crate::io::dataset::{Dataset, Frame};
+use crate::io::file_stem;
 use crate::io::work::{read_stage_scene, WorkDir};
 use crate::scene::{Environment, Layout, Scene, State};
 use crate::shade::denoise::denoise_render;
@@ -599,10 +600,7 @@ fn albedo_ratio(
                     map[i] = Some(d.map(|d| d.1));
                 }
                 image::imageops::replace(&mut strip, &html::ghost_map(&map, w, h), 2 * w as i64, 0);
-                let stem = Path::new(&v.frame)
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_default();
+                let stem = file_stem(&v.frame).unwrap_or_default();
                 let rel = format!("materials/{}/{stem}-ghosts.png", v.state);
                 strips.push((dir.join(&rel), strip));
                 rel
@@ -735,14 +733,8 @@ fn render_view(
         rows.insert("no_retracing".to_string(), row(images));
     }
     let image = if opts.images {
-        let run_name = Path::new(view.run.environment)
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let stem = Path::new(&frame.file_path)
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| format!("{:03}", view.v));
+        let run_name = file_stem(view.run.environment).unwrap_or_default();
+        let stem = file_stem(&frame.file_path).unwrap_or_else(|| format!("{:03}", view.v));
         let rel = format!(
             "images/{}/{}/{stem}.png",
             d.states[view.k].name,
@@ -850,10 +842,7 @@ fn material_view(
 ) -> html::MaterialView {
     let (w, h) = (frame.camera.w, frame.camera.h);
     let state = &d.states[k].name;
-    let stem = Path::new(&frame.file_path)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let stem = frame.stem();
     let mut figures = Vec::new();
     let mut add = |name: &str, caption: &str, img: image::RgbImage| {
         let rel = format!("materials/{state}/{stem}-{name}.png");

@@ -103,13 +103,7 @@ pub fn read_views(path: &Path, frames_arg: Option<&str>, state_name: &str) -> Re
             "expected at least one camera frame",
         ));
     }
-    let stem = |f: &Frame| {
-        Path::new(&f.file_path)
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
-    let stems: Vec<String> = frames.iter().map(|(f, _, _)| stem(f)).collect();
+    let stems: Vec<String> = frames.iter().map(|(f, _, _)| f.stem()).collect();
     let unique = {
         let mut s = stems.clone();
         s.sort();

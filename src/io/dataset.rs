@@ -77,6 +77,14 @@ pub struct Frame {
     pub camera: Camera,
 }
 
+impl Frame {
+    /// The image file's stem (`test/r_003.exr` → `r_003`), which names everything written per
+    /// frame; empty when the path has no file name.
+    pub fn stem(&self) -> String {
+        super::file_stem(&self.file_path).unwrap_or_default()
+    }
+}
+
 #[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Relight {
     pub environment: String,
@@ -626,10 +634,7 @@ pub fn attach_ground_truth(
         }
         for r in &s.relight {
             let e = load_env(&r.environment)?;
-            let stem = std::path::Path::new(&r.environment)
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
+            let stem = super::file_stem(&r.environment).unwrap_or_default();
             states.push(State {
                 name: format!("{}_{stem}", s.name),
                 transforms: transforms.clone(),

@@ -40,12 +40,10 @@ fn exr_err(file: &Path, e: exr::error::Error) -> Error {
 /// or the file's stem. `lightfuse env` converts with it; everything that lights a scene reads
 /// through [`read_lighting`].
 pub fn read_latlong(path: &Path, name: Option<&str>) -> Result<Environment> {
-    let stem = || {
-        path.file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
-    let name = name.map_or_else(stem, str::to_string);
+    let name = name.map_or_else(
+        || super::file_stem(path).unwrap_or_default(),
+        str::to_string,
+    );
     let env = read_environment(path, &name)?;
     env.check_latlong(path, "EXR data window")?;
     Ok(env)

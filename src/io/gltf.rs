@@ -337,10 +337,7 @@ pub fn write_glb(scene: &Scene, path: &Path) -> Result<()> {
 
 /// Writes a `.gltf` with its buffer in `<stem>.bin` and environments in `<stem>.env/`.
 pub fn write_gltf(scene: &Scene, path: &Path) -> Result<()> {
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "scene".into());
+    let stem = super::file_stem(path).unwrap_or_else(|| "scene".into());
     let dir = path.parent().unwrap_or(Path::new(""));
     let env_dir_name = format!("{stem}.env");
     let env_dir = dir.join(&env_dir_name);

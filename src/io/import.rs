@@ -873,10 +873,7 @@ fn read_depth(path: &Path) -> Result<(u32, u32, Vec<f32>)> {
 
 /// The relative path a frame's file is written to: `<dir>/<state>/<stem>.<ext>`.
 fn out_rel(dir: &str, state: &str, name: &str, ext: &str) -> String {
-    let stem = Path::new(name)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let stem = super::file_stem(name).unwrap_or_default();
     format!("{dir}/{state}/{stem}.{ext}")
 }
 

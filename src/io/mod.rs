@@ -17,6 +17,15 @@ use crate::error::{Error, Result};
 use crate::scene::Scene;
 use std::path::{Path, PathBuf};
 
+/// A path's file name without its extension, as a `String` (lossy on non-UTF-8 names); `None`
+/// when the path has no file name (`""`, `"/"`, `".."`). The one spelling of this for frames,
+/// environments and output files.
+pub fn file_stem(path: impl AsRef<Path>) -> Option<String> {
+    path.as_ref()
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+}
+
 /// Scene file kinds, chosen by extension.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SceneFormat {

@@ -118,10 +118,7 @@ impl Names {
             .iter()
             .map(|s| unique(variant_name(&s.name), &mut used))
             .collect();
-        let stem = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let stem = super::file_stem(path).unwrap_or_default();
         let dir = format!("{}.env", file_name(&stem));
         let mut used = HashSet::new();
         let env_files = scene
