@@ -355,6 +355,7 @@ mod tests {
             "bounces",
             "light_fit",
             "light_fit_texture",
+            "light_fit_tie",
             "material_search",
         ] {
             old.as_object_mut().unwrap().remove(later).unwrap();

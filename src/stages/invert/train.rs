@@ -296,6 +296,11 @@ pub struct Settings {
     /// checkpoints and reports: off).
     #[serde(default)]
     pub light_fit_texture: bool,
+    /// With [`Settings::light_fit`]: pull a component's groups whose colours the data put
+    /// nearly alike to one colour ([`super::lightfit::tie_groups`]; not in the paper; off by
+    /// default, old checkpoints and reports: off).
+    #[serde(default)]
+    pub light_fit_tie: bool,
     /// Start each object from the best of a few material hypotheses
     /// ([`super::hypotheses`]; not in the paper; old checkpoints and reports: off).
     #[serde(default)]
@@ -395,6 +400,7 @@ impl Settings {
             lambda_base_color: 0.0,
             light_fit: true,
             light_fit_texture: false,
+            light_fit_tie: false,
             material_search: true,
             init_base_color: 0.5,
             init_metallic: 0.02,
@@ -532,6 +538,11 @@ pub struct Overrides {
     /// (docs/results/stage3-survey.md, variant `texsun`); default: off.
     #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true")]
     pub light_fit_texture: Option<bool>,
+    /// With the light fit, pull the groups of one object (or of the room) whose own data give
+    /// nearly one colour (within ~10 %) to one colour, so a wall that alone sees some part of
+    /// the sky cannot trade its paint against that light; default: off.
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true")]
+    pub light_fit_tie: Option<bool>,
     /// Start each object from the best of a few material hypotheses (the preset's, glossy,
     /// brushed and polished metal), each tested on the object's training pixels with its best
     /// base colour, so chrome can start as a metal (`stages::invert::hypotheses`; not in the
@@ -612,6 +623,9 @@ impl Overrides {
         }
         if let Some(v) = self.light_fit_texture {
             s.light_fit_texture = v;
+        }
+        if let Some(v) = self.light_fit_tie {
+            s.light_fit_tie = v;
         }
         if let Some(b) = self.bounces {
             s.bounces = b;
@@ -1112,7 +1126,10 @@ impl Inverter {
             .map(|s| initial_environment(&s.views, w, h))
             .collect();
         let fit_it = settings.light_fit;
-        let texture = settings.light_fit_texture;
+        let options = super::lightfit::FitOptions {
+            texture: settings.light_fit_texture,
+            tie: settings.light_fit_tie,
+        };
         let seed = settings.seed;
         let grey = settings.init_base_color;
         let mut inv = Inverter::new(settings, components, &envs);
@@ -1121,7 +1138,7 @@ impl Inverter {
         }
         let fit = {
             let cache = inv.ensure_cache(trace, states);
-            super::lightfit::fit(trace, states, cache, components, seed, texture)
+            super::lightfit::fit(trace, states, cache, components, seed, options)
         };
         for (k, e) in fit.envs.iter().enumerate() {
             let fine = e.resample(w, h);
@@ -1571,6 +1588,8 @@ mod tests {
         assert!(!apply(&["D", "--material-search=false"]).material_search);
         assert!(!apply(&["D"]).light_fit_texture);
         assert!(apply(&["D", "--light-fit-texture"]).light_fit_texture);
+        assert!(!apply(&["D"]).light_fit_tie);
+        assert!(apply(&["D", "--light-fit-tie"]).light_fit_tie);
         assert_eq!(apply(&["D", "--lr-env", "0"]).lr_env, 0.0);
         assert_eq!(apply(&["D", "--lr-decay", "0.01"]).lr_decay, 0.01);
         assert_eq!(apply(&["D", "--lr-base-color", "0.02"]).lr_base_color, 0.02);
